@@ -1,0 +1,306 @@
+"""Corruption synthesis (PROTOCOL.md): noise and gaps as pure functions taking ``np.random.Generator``.
+
+Angle corruptions act on a clean ``Motion`` and return ``(noisy [T, C], mask [T, C])``: the corrupted
+channels (NaN where missing) and the missing-sample mask (True = missing). Only the skeleton's scored
+channels (rotations of non-context joints) are touched. ``σ_c`` is the standard deviation of channel ``c``
+over the clean clip.
+
+Point corruptions act on clean ``Markers`` and return new ``Markers`` whose ``visible`` is False where data
+was removed.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from collections.abc import Callable
+
+import numpy as np
+
+from mocapnet.kinematics import inverse_kinematics, joint_positions
+from mocapnet.motion import Markers, Motion
+from mocapnet.segments import SEGMENTS, marker_segment, skeleton_segment
+
+ANGLE_CORRUPTIONS = (
+    "none",
+    "angular-0.1",
+    "angular-0.5",
+    "angular-0.9",
+    "spatial-0.1cm",
+    "spatial-0.5cm",
+    "spatial-1cm",
+    "spatial-3cm",
+    "spatial-ends",
+    "uniform-0.5",
+    "bias-const",
+    "bias-sine",
+    "gaps",
+    "gaps-long",
+    "noise+gaps",
+)
+POINT_CORRUPTIONS = ("segment-gap:SEG:S", "marker-gap:S")
+
+
+def seed_for(corpus: str, file: str, repeat: int, corruption: str = "") -> int:
+    """Deterministic seed from (corpus, file name, repeat, corruption) so every run scores the same inputs."""
+    digest = hashlib.sha256(f"{corpus}|{file}|{repeat}|{corruption}".encode()).digest()
+    return int.from_bytes(digest[:8], "little")
+
+
+def channel_std(channels: np.ndarray) -> np.ndarray:
+    """``σ_c``: standard deviation of each channel over the clip, ``[C]``."""
+    return channels.std(axis=0)
+
+
+def angular_noise(channels: np.ndarray, scored: np.ndarray, k: float, rng: np.random.Generator) -> np.ndarray:
+    """Add i.i.d. Gaussian noise of std ``k·σ_c`` to the scored channels of ``channels [T, C]``."""
+    std = k * channel_std(channels) * scored
+    return channels + rng.standard_normal(channels.shape) * std
+
+
+def uniform_noise(channels: np.ndarray, scored: np.ndarray, k: float, rng: np.random.Generator) -> np.ndarray:
+    """Add i.i.d. uniform noise with std ``k·σ_c`` (half-width ``√3·k·σ_c``) to the scored channels."""
+    half = np.sqrt(3.0) * k * channel_std(channels) * scored
+    return channels + rng.uniform(-1.0, 1.0, channels.shape) * half
+
+
+def constant_bias(channels: np.ndarray, scored: np.ndarray, k: float, rng: np.random.Generator) -> np.ndarray:
+    """Add a constant offset of ``±k·σ_c`` (random sign per channel) to the scored channels."""
+    sign = rng.choice([-1.0, 1.0], size=channels.shape[1])
+    return channels + sign * k * channel_std(channels) * scored
+
+
+def sine_bias(channels: np.ndarray, scored: np.ndarray, k: float, fps: float, rng: np.random.Generator) -> np.ndarray:
+    """Add ``k·σ_c·sin(2π f t + φ)`` per channel, f uniform in [0.1, 1] Hz, φ uniform in [0, 2π)."""
+    n_frames, n_ch = channels.shape
+    freq = rng.uniform(0.1, 1.0, n_ch)
+    phase = rng.uniform(0.0, 2 * np.pi, n_ch)
+    t = np.arange(n_frames)[:, None] / fps
+    return channels + k * channel_std(channels) * scored * np.sin(2 * np.pi * freq * t + phase)
+
+
+def spatial_noise(motion: Motion, std_cm: float | np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """Channels after i.i.d. 3-D Gaussian noise of ``std_cm`` (scalar, or ``[J + E]`` per joint and End
+    Site) on every joint position, taken back to angles by bone-length-preserving IK."""
+    pos = joint_positions(motion, end_sites=True)
+    std = np.broadcast_to(np.asarray(std_cm, dtype=np.float64), (pos.shape[1],))
+    noisy = pos + rng.standard_normal(pos.shape) * std[None, :, None]
+    return inverse_kinematics(motion, noisy)
+
+
+def end_joint_std(motion: Motion, ends_cm: float = 0.5, other_cm: float = 0.1) -> np.ndarray:
+    """Per-point std for ``spatial-ends``: ``ends_cm`` on wrists/hands, ankles/feet (and their End Sites
+    and children), ``other_cm`` elsewhere; ``[J + E]``."""
+    sk = motion.skeleton
+    ends = ("hand", "wrist", "finger", "thumb", "foot", "ankle", "toe")
+    is_end = [any(e in n.lower() for e in ends) for n in sk.names]
+    is_end += [is_end[p] for p in sk.end_parents]
+    return np.where(is_end, ends_cm, other_cm)
+
+
+def _mean_gap_frames(mean_frames: float, max_frames: int) -> float:
+    """Mean length of ``clip(round(Exp(mean)), 1, max)``, computed on a fixed sample."""
+    sample = np.random.default_rng(0).exponential(mean_frames, 200_000)
+    return float(np.clip(np.round(sample), 1, max_frames).mean())
+
+
+def gap_mask(
+    n_frames: int,
+    n_tracks: int,
+    fps: float,
+    rng: np.random.Generator,
+    mean_s: float = 0.5,
+    max_s: float = 2.0,
+    fraction: float = 0.1,
+) -> np.ndarray:
+    """Missing-data mask ``[T, n_tracks]`` (True = missing) of exponential-length gaps.
+
+    Gap lengths are exponential with mean ``mean_s`` seconds, at least 1 frame and at most ``max_s``;
+    onsets are Bernoulli per frame with the rate that makes about ``fraction`` of each track missing.
+    No gap touches the first or last frame.
+    """
+    mask = np.zeros((n_frames, n_tracks), dtype=bool)
+    if n_frames < 3:
+        return mask
+    mean_f = mean_s * fps
+    max_f = max(1, int(round(max_s * fps)))
+    mean_len = _mean_gap_frames(mean_f, max_f)
+    p_onset = min(1.0, fraction / (mean_len * (1.0 - fraction)))
+    for track in range(n_tracks):
+        t = 1
+        while True:
+            t += int(rng.geometric(p_onset)) - 1
+            if t >= n_frames - 1:
+                break
+            length = int(np.clip(round(rng.exponential(mean_f)), 1, max_f))
+            end = min(t + length, n_frames - 1)
+            mask[t:end, track] = True
+            t = end + 1
+    return mask
+
+
+def long_gap_mask(
+    n_frames: int,
+    candidates: np.ndarray,
+    n_tracks: int,
+    fps: float,
+    rng: np.random.Generator,
+    min_s: float = 2.0,
+    max_s: float = 5.0,
+) -> np.ndarray:
+    """``[T, n_tracks]`` mask with 1 to 3 random tracks (from ``candidates``) each missing one gap of
+    ``min_s`` to ``max_s`` seconds (uniform), shortened to fit inside frames 1 … T-2."""
+    mask = np.zeros((n_frames, n_tracks), dtype=bool)
+    if n_frames < 3:
+        return mask
+    count = int(rng.integers(1, 4))
+    for track in rng.choice(candidates, size=min(count, len(candidates)), replace=False):
+        length = min(int(round(rng.uniform(min_s, max_s) * fps)), n_frames - 2)
+        onset = int(rng.integers(1, n_frames - 1 - length + 1))
+        mask[onset : onset + length, track] = True
+    return mask
+
+
+def window_gap_mask(
+    n_frames: int,
+    tracks: list[int],
+    n_tracks: int,
+    seconds: float,
+    fps: float,
+    rng: np.random.Generator,
+    margin_s: float = 1.0,
+    name: str = "",
+) -> np.ndarray:
+    """``[T, n_tracks]`` mask with ``tracks`` all missing for ``seconds`` at one random onset, leaving at
+    least ``margin_s`` seconds visible on each side. Raises ValueError when the clip is too short."""
+    length = max(1, int(round(seconds * fps)))
+    margin = int(round(margin_s * fps))
+    last_onset = n_frames - margin - length
+    if last_onset < margin:
+        raise ValueError(
+            f"{name or 'clip'}: {n_frames} frames at {fps:g} Hz are too short for a {seconds:g} s gap with "
+            f"{margin_s:g} s visible on each side"
+        )
+    onset = int(rng.integers(margin, last_onset + 1))
+    mask = np.zeros((n_frames, n_tracks), dtype=bool)
+    mask[onset : onset + length, tracks] = True
+    return mask
+
+
+def joint_mask_to_channels(motion: Motion, joint_mask: np.ndarray) -> np.ndarray:
+    """Expand a per-joint mask ``[T, J]`` to the joints' scored channels ``[T, C]``."""
+    sk = motion.skeleton
+    mask = np.zeros(motion.channels.shape, dtype=bool)
+    for j in range(sk.n_joints):
+        cols = sk.joint_channels(j)
+        cols = cols[sk.scored_mask[cols]]
+        mask[:, cols] = joint_mask[:, [j]]
+    return mask
+
+
+def _apply_mask(channels: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    out = channels.copy()
+    out[mask] = np.nan
+    return out
+
+
+def corrupt_motion(motion: Motion, corruption: str, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Apply a named angle corruption (``ANGLE_CORRUPTIONS``) to a clean motion.
+
+    Returns ``(noisy [T, C], mask [T, C])`` with NaN in ``noisy`` where ``mask`` is True.
+    """
+    ch = motion.channels
+    scored = motion.skeleton.scored_mask
+    no_gaps = np.zeros(ch.shape, dtype=bool)
+    if corruption == "none":
+        return ch.copy(), no_gaps
+    kind, _, arg = corruption.partition("-")
+    if kind == "angular":
+        return angular_noise(ch, scored, float(arg), rng), no_gaps
+    if kind == "uniform":
+        return uniform_noise(ch, scored, float(arg), rng), no_gaps
+    if corruption == "spatial-ends":
+        return spatial_noise(motion, end_joint_std(motion), rng), no_gaps
+    if kind == "spatial" and arg.endswith("cm"):
+        return spatial_noise(motion, float(arg[:-2]), rng), no_gaps
+    if corruption == "bias-const":
+        return constant_bias(angular_noise(ch, scored, 0.5, rng), scored, 0.5, rng), no_gaps
+    if corruption == "bias-sine":
+        return sine_bias(angular_noise(ch, scored, 0.5, rng), scored, 0.5, motion.fps, rng), no_gaps
+    n_j = motion.skeleton.n_joints
+    if corruption == "gaps":
+        mask = joint_mask_to_channels(motion, gap_mask(motion.n_frames, n_j, motion.fps, rng))
+        return _apply_mask(ch, mask), mask
+    if corruption == "gaps-long":
+        joints = motion.skeleton.scored_joints
+        mask = joint_mask_to_channels(motion, long_gap_mask(motion.n_frames, joints, n_j, motion.fps, rng))
+        return _apply_mask(ch, mask), mask
+    if corruption == "noise+gaps":
+        noisy = angular_noise(ch, scored, 0.5, rng)
+        mask = joint_mask_to_channels(motion, gap_mask(motion.n_frames, n_j, motion.fps, rng))
+        return _apply_mask(noisy, mask), mask
+    if kind in ("segment", "marker"):
+        joint_mask = point_gap_mask(
+            corruption,
+            motion.n_frames,
+            motion.fps,
+            rng,
+            lambda seg: skeleton_segment(motion.skeleton, seg),
+            motion.skeleton.n_joints,
+            list(motion.skeleton.scored_joints),
+            motion.name,
+        )
+        mask = joint_mask_to_channels(motion, joint_mask)
+        return _apply_mask(ch, mask), mask
+    raise ValueError(f"unknown corruption {corruption!r}; known: {', '.join(ANGLE_CORRUPTIONS + POINT_CORRUPTIONS)}")
+
+
+def point_gap_mask(
+    corruption: str,
+    n_frames: int,
+    fps: float,
+    rng: np.random.Generator,
+    segment_tracks: Callable[[str], list[int]],
+    n_tracks: int,
+    candidates: list[int],
+    name: str = "",
+) -> np.ndarray:
+    """Mask ``[T, n_tracks]`` for ``segment-gap:SEG:S`` or ``marker-gap:S``.
+
+    ``segment_tracks(seg)`` gives the track indices of a segment; ``candidates`` the tracks a single
+    marker gap may pick from.
+    """
+    parts = corruption.split(":")
+    if parts[0] == "segment-gap" and len(parts) == 3 and parts[1] in SEGMENTS:
+        tracks = segment_tracks(parts[1])
+        seconds = float(parts[2])
+    elif parts[0] == "marker-gap" and len(parts) == 2:
+        tracks = [int(rng.choice(candidates))]
+        seconds = float(parts[1])
+    else:
+        raise ValueError(
+            f"bad point corruption {corruption!r}; use segment-gap:SEG:SECONDS (SEG in {', '.join(SEGMENTS)}) "
+            "or marker-gap:SECONDS"
+        )
+    return window_gap_mask(n_frames, tracks, n_tracks, seconds, fps, rng, name=name)
+
+
+def corrupt_markers(markers: Markers, corruption: str, rng: np.random.Generator) -> Markers:
+    """Remove data from clean markers by a point corruption; returns Markers with ``visible`` reduced."""
+    candidates = list(np.flatnonzero(markers.visible.all(axis=0)))
+    mask = point_gap_mask(
+        corruption,
+        markers.n_frames,
+        markers.fps,
+        rng,
+        lambda seg: marker_segment(markers.labels, seg),
+        markers.n_markers,
+        candidates,
+        markers.name,
+    )
+    return Markers(markers.points, markers.visible & ~mask, markers.labels, markers.fps, markers.name)
+
+
+def motion_markers(motion: Motion, channels: np.ndarray | None = None) -> Markers:
+    """Joint positions of a motion as ``Markers`` (one point per joint, labelled by joint name, cm)."""
+    pos = joint_positions(motion, channels)
+    return Markers(pos, np.ones(pos.shape[:2], dtype=bool), motion.skeleton.names, motion.fps, motion.name)

@@ -1,0 +1,277 @@
+"""The evaluation harness: corrupt clean clips reproducibly, run methods, score them (PROTOCOL.md).
+
+BVH data (a corpus name or folder) is scored in angle space; point methods (kNN, extrapolation) run on its
+joint positions and are taken back to angles by IK. A folder of C3D files is scored in point space with
+``segment-gap`` / ``marker-gap`` corruptions.
+"""
+
+from __future__ import annotations
+
+import time
+import warnings
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from mocapnet.corpus import Corpus, load_corpus
+from mocapnet.corrupt import ANGLE_CORRUPTIONS, corrupt_markers, corrupt_motion, seed_for
+from mocapnet.evaluate import metrics
+from mocapnet.io.atomic import MocapFileError
+from mocapnet.io.c3d import read_c3d
+from mocapnet.kinematics import global_transforms, inverse_kinematics, joint_positions, local_rotations
+from mocapnet.methods.baselines import lerp_fill
+from mocapnet.methods.registry import Method, MethodContext, build_method, parse_method, spaces_of
+from mocapnet.motion import Markers, Motion
+
+ROW_FIELDS = (
+    "method",
+    "corruption",
+    "file",
+    "repeat",
+    "angle_err_deg",
+    "gap_err_deg",
+    "rot_err_deg",
+    "pos_err_cm",
+    "point_err_cm",
+    "frames",
+    "seconds",
+)
+GAUSSIANS = ("gaussian-58ms", "gaussian-125ms", "gaussian-tuned")
+
+
+def has_gaps(corruption: str) -> bool:
+    return "gap" in corruption
+
+
+def reference_methods(corruption: str, space: str) -> tuple[str, ...]:
+    """Baselines every table carries so that ratios can be formed (PROTOCOL.md 'Ratio')."""
+    if space == "points":
+        return ("lerp",)
+    if corruption == "noise+gaps":
+        return ("lerp", "lerp+gaussian-58ms")
+    if has_gaps(corruption):
+        return ("lerp",)
+    return ("noisy", "gaussian-58ms", "gaussian-125ms")
+
+
+@dataclass
+class Evaluation:
+    """Rows (one per method, file, repeat) and what was scored."""
+
+    data: str
+    corruption: str
+    space: str
+    methods: list[str]
+    rows: list[dict] = field(default_factory=list)
+    skipped: list[tuple[str, str]] = field(default_factory=list)
+    fold: int | None = None
+    repeats: int = 1
+
+
+def is_c3d_data(data: str | Path) -> bool:
+    p = Path(str(data))
+    if p.is_file():
+        return p.suffix.lower() == ".c3d"
+    return p.is_dir() and any(f.suffix.lower() == ".c3d" for f in p.iterdir())
+
+
+# ---------------------------------------------------------------------------------------------- angles
+
+
+def _points_method_as_angles(method: Method):
+    """Run a point method on joint positions and take the result back to angles by IK (masked joints only)."""
+
+    def clean(noisy: Motion, mask: np.ndarray) -> np.ndarray:
+        sk = noisy.skeleton
+        filled = lerp_fill(noisy.channels, mask)
+        base = noisy.with_channels(filled)
+        pos = joint_positions(base, end_sites=True)
+        joint_missing = np.stack([mask[:, sk.joint_channels(j)].any(axis=1) for j in range(sk.n_joints)], axis=1)
+        # A joint's position depends on its ancestors' rotations: it is missing if any ancestor is.
+        pos_missing = joint_missing.copy()
+        for j, p in enumerate(sk.parents):
+            if p >= 0:
+                pos_missing[:, j] |= pos_missing[:, p] | joint_missing[:, p]
+        ends_missing = np.stack([pos_missing[:, p] | joint_missing[:, p] for p in sk.end_parents], axis=1)
+        visible = ~np.concatenate([pos_missing, ends_missing], axis=1)
+        labels = list(sk.names) + [f"{sk.names[p]}_end{e}" for e, p in enumerate(sk.end_parents)]
+        markers = Markers(pos, visible, labels, noisy.fps, noisy.name)
+        target = method.clean(markers)
+        out = inverse_kinematics(base, target)
+        result = noisy.channels.copy()
+        result[mask] = out[mask]
+        return result
+
+    return clean
+
+
+def _motion_train_as_markers(train: Sequence[Motion]) -> list[Markers]:
+    out = []
+    for m in train:
+        pos = joint_positions(m, end_sites=True)
+        sk = m.skeleton
+        labels = list(sk.names) + [f"{sk.names[p]}_end{e}" for e, p in enumerate(sk.end_parents)]
+        out.append(Markers(pos, np.ones(pos.shape[:2], dtype=bool), labels, m.fps, m.name))
+    return out
+
+
+def evaluate_angles(
+    corpus: Corpus,
+    clips: Sequence[Motion],
+    train: Sequence[Motion],
+    corruption: str,
+    methods: Sequence[str],
+    repeats: int,
+    progress: bool = True,
+) -> tuple[list[dict], list[tuple[str, str]]]:
+    """Score angle-space methods (and point methods through IK) on ``clips``; returns rows and skipped."""
+    from tqdm import tqdm
+
+    context = MethodContext(train=train, corpus=corpus.name, corruption=corruption)
+    point_context: MethodContext | None = None
+    built: list[tuple[str, Callable]] = []
+    for text in methods:
+        if "angles" in spaces_of(parse_method(text)[0]):
+            built.append((text, build_method(text, context).clean))
+            continue
+        if point_context is None:
+            point_context = MethodContext(_motion_train_as_markers(train), corpus.name, corruption)
+        built.append((text, _points_method_as_angles(build_method(text, point_context))))
+    rows: list[dict] = []
+    skipped: list[tuple[str, str]] = []
+    for motion in tqdm(clips, desc=f"evaluating {corruption}", unit="clip", disable=not progress):
+        sk = motion.skeleton
+        truth_rot = local_rotations(sk, motion.channels)
+        truth_pos = global_transforms(sk, motion.channels)[1]
+        for rep in range(repeats):
+            rng = np.random.default_rng(seed_for(corpus.name, motion.name, rep, corruption))
+            try:
+                noisy_ch, mask = corrupt_motion(motion, corruption, rng)
+            except ValueError as exc:
+                skipped.append((motion.name, str(exc)))
+                break
+            noisy = motion.with_channels(noisy_ch)
+            for text, clean in built:
+                start = time.perf_counter()
+                out = clean(noisy, mask)
+                seconds = time.perf_counter() - start
+                rows.append(
+                    {
+                        "method": text,
+                        "corruption": corruption,
+                        "file": motion.name,
+                        "repeat": rep,
+                        "angle_err_deg": metrics.angle_err_deg(out, motion.channels, sk.scored_mask),
+                        "gap_err_deg": metrics.gap_err_deg(out, motion.channels, mask),
+                        "rot_err_deg": metrics.rot_err_deg(motion, out, truth_rot),
+                        "pos_err_cm": metrics.pos_err_cm(motion, out, truth_pos),
+                        "point_err_cm": float("nan"),
+                        "frames": motion.n_frames,
+                        "seconds": seconds,
+                    }
+                )
+    return rows, skipped
+
+
+# ---------------------------------------------------------------------------------------------- points
+
+
+def load_c3d_folder(data: str | Path, progress: bool = True) -> tuple[list[Markers], list[tuple[str, str]]]:
+    """Complete-enough C3D files of a folder (or one file); unreadable files are skipped with the reason."""
+    p = Path(str(data))
+    files = [p] if p.is_file() else sorted(f for f in p.iterdir() if f.suffix.lower() == ".c3d")
+    clips, skipped = [], []
+    for f in files:
+        try:
+            clips.append(read_c3d(f))
+        except MocapFileError as exc:
+            skipped.append((f.name, str(exc)))
+    return clips, skipped
+
+
+def evaluate_points(
+    clips: Sequence[Markers], corruption: str, methods: Sequence[str], repeats: int, corpus: str, progress: bool = True
+) -> tuple[list[dict], list[tuple[str, str]]]:
+    """Score point methods on marker clips under a ``segment-gap``/``marker-gap`` corruption.
+
+    Markers that are not visible throughout a clip are dropped from it first so the truth is complete.
+    """
+    from tqdm import tqdm
+
+    complete = []
+    for m in clips:
+        keep = np.flatnonzero(m.visible.all(axis=0))
+        if keep.size:
+            complete.append(m.select(keep))
+    context = MethodContext(train=complete, corpus=corpus, corruption=corruption)
+    built = [(text, build_method(text, context, space="points").clean) for text in methods]
+    rows, skipped = [], []
+    for truth in tqdm(complete, desc=f"evaluating {corruption}", unit="file", disable=not progress):
+        for rep in range(repeats):
+            rng = np.random.default_rng(seed_for(corpus, truth.name, rep, corruption))
+            try:
+                noisy = corrupt_markers(truth, corruption, rng)
+            except ValueError as exc:
+                skipped.append((truth.name, str(exc)))
+                break
+            missing = ~noisy.visible
+            for text, clean in built:
+                start = time.perf_counter()
+                out = clean(noisy)
+                seconds = time.perf_counter() - start
+                rows.append(
+                    {
+                        "method": text,
+                        "corruption": corruption,
+                        "file": truth.name,
+                        "repeat": rep,
+                        "angle_err_deg": float("nan"),
+                        "gap_err_deg": float("nan"),
+                        "rot_err_deg": float("nan"),
+                        "pos_err_cm": float("nan"),
+                        "point_err_cm": metrics.point_err_cm(out, truth.points, missing),
+                        "frames": truth.n_frames,
+                        "seconds": seconds,
+                    }
+                )
+    return rows, skipped
+
+
+# ---------------------------------------------------------------------------------------------- entry
+
+
+def evaluate(
+    data: str,
+    corruption: str,
+    methods: Sequence[str],
+    repeats: int = 5,
+    fold: int | None = None,
+    limit: int | None = None,
+    progress: bool = True,
+    corpus: Corpus | None = None,
+) -> Evaluation:
+    """Score ``methods`` on ``data`` under ``corruption`` (see module docstring).
+
+    BVH: with ``fold`` the test clips of that fold are scored and methods may learn from its training
+    folds; without it every clip is scored and trainable baselines use fold 0's training folds. The
+    reference baselines needed for ratios are added when missing.
+    """
+    if is_c3d_data(data):
+        if corruption in ANGLE_CORRUPTIONS:
+            raise ValueError(f"{data}: C3D data takes segment-gap:SEG:S or marker-gap:S, not {corruption!r}")
+        clips, skipped = load_c3d_folder(data, progress)
+        if limit:
+            clips = clips[:limit]
+        wanted = list(dict.fromkeys(list(methods) + list(reference_methods(corruption, "points"))))
+        rows, skipped2 = evaluate_points(clips, corruption, wanted, repeats, Path(str(data)).name, progress)
+        return Evaluation(str(data), corruption, "points", wanted, rows, skipped + skipped2, None, repeats)
+    corpus = corpus or load_corpus(data, progress=progress, limit=limit)
+    train, _, test = corpus.split(fold if fold is not None else 0)
+    clips = test if fold is not None else corpus.motions
+    wanted = list(dict.fromkeys(list(methods) + list(reference_methods(corruption, "angles"))))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        rows, skipped = evaluate_angles(corpus, clips, train, corruption, wanted, repeats, progress)
+    return Evaluation(corpus.name, corruption, "angles", wanted, rows, corpus.skipped + skipped, fold, repeats)

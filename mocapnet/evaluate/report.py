@@ -1,0 +1,144 @@
+"""Summaries of evaluation rows: console/markdown tables with ratios, CSV, and per-motion error plots."""
+
+from __future__ import annotations
+
+import csv
+import math
+import os
+from pathlib import Path
+
+import numpy as np
+
+from mocapnet.evaluate.harness import GAUSSIANS, ROW_FIELDS, Evaluation, has_gaps
+from mocapnet.io.atomic import atomic_output
+
+
+def _mean(values: list[float]) -> float:
+    arr = np.asarray(values, dtype=np.float64)
+    return float(np.nanmean(arr)) if np.isfinite(arr).any() else float("nan")
+
+
+def summarize(ev: Evaluation) -> list[dict]:
+    """One dict per method: means over (file, repeat) rows of each metric, frames/s, and the ratio to the
+    reference baseline (best Gaussian for noise; lerp+Gaussian-58ms for noise+gaps; lerp for gaps and
+    point data), taken on the headline metric (``ratio_of``)."""
+    by_method: dict[str, list[dict]] = {}
+    for r in ev.rows:
+        by_method.setdefault(r["method"], []).append(r)
+    summary = []
+    for method in ev.methods:
+        rows = by_method.get(method, [])
+        if not rows:
+            continue
+        entry = {"method": method, "n": len(rows)}
+        for key in ("angle_err_deg", "gap_err_deg", "rot_err_deg", "pos_err_cm", "point_err_cm"):
+            entry[key] = _mean([r[key] for r in rows])
+        seconds = sum(r["seconds"] for r in rows)
+        entry["frames_per_s"] = sum(r["frames"] for r in rows) / seconds if seconds > 0 else float("inf")
+        summary.append(entry)
+    metric, reference = headline(ev)
+    ref_value = min(
+        (e[metric] for e in summary if e["method"] in reference and math.isfinite(e[metric])), default=math.nan
+    )
+    for e in summary:
+        e["ratio"] = e[metric] / ref_value if ref_value and math.isfinite(ref_value) else float("nan")
+        e["ratio_of"] = metric
+    return summary
+
+
+def headline(ev: Evaluation) -> tuple[str, tuple[str, ...]]:
+    """(metric, reference methods) for the ratio column."""
+    if ev.space == "points":
+        return "point_err_cm", ("lerp",)
+    if ev.corruption == "noise+gaps":
+        return "gap_err_deg", ("lerp+gaussian-58ms",)
+    if has_gaps(ev.corruption):
+        return "gap_err_deg", ("lerp",)
+    return "angle_err_deg", GAUSSIANS
+
+
+def _fmt(x: float, digits: int = 3) -> str:
+    return "—" if x is None or (isinstance(x, float) and not math.isfinite(x)) else f"{x:.{digits}f}"
+
+
+def table(ev: Evaluation, markdown: bool = False) -> str:
+    """The summary table as aligned text (console) or markdown."""
+    summary = summarize(ev)
+    metric, reference = headline(ev)
+    if ev.space == "points":
+        cols = [
+            ("method", "method"),
+            ("point_err_cm", "point err cm"),
+            ("ratio", "ratio"),
+            ("frames_per_s", "frames/s"),
+            ("n", "n"),
+        ]
+    else:
+        cols = [
+            ("method", "method"),
+            ("angle_err_deg", "angle err °"),
+            ("gap_err_deg", "gap err °"),
+            ("rot_err_deg", "rot err °"),
+            ("pos_err_cm", "pos err cm"),
+            ("ratio", "ratio"),
+            ("frames_per_s", "frames/s"),
+            ("n", "n"),
+        ]
+    body = []
+    for e in summary:
+        row = []
+        for key, _ in cols:
+            v = e[key]
+            row.append(
+                v if isinstance(v, str) else str(v) if key == "n" else _fmt(v, 0 if key == "frames_per_s" else 3)
+            )
+        body.append(row)
+    head = [c[1] for c in cols]
+    present = [m for m in reference if any(e["method"] == m for e in summary)]
+    note = f"ratio = {metric} ÷ that of the best of {', '.join(present) or reference[0]}"
+    if markdown:
+        lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+        lines += ["| " + " | ".join(r) + " |" for r in body]
+        return "\n".join(lines) + f"\n\n{note}"
+    widths = [max(len(h), *(len(r[i]) for r in body)) for i, h in enumerate(head)]
+    fmt_row = lambda r: "  ".join(v.ljust(w) if i == 0 else v.rjust(w) for i, (v, w) in enumerate(zip(r, widths)))  # noqa: E731
+    return "\n".join([fmt_row(head), fmt_row(["-" * w for w in widths])] + [fmt_row(r) for r in body] + [note])
+
+
+def write_csv(path: str | os.PathLike, rows: list[dict]) -> None:
+    """One line per (method, corruption, file, repeat) with the columns of ``ROW_FIELDS``."""
+    with atomic_output(path) as tmp, open(tmp, "w", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=list(ROW_FIELDS))
+        writer.writeheader()
+        for r in rows:
+            writer.writerow({k: (f"{r[k]:.6g}" if isinstance(r[k], float) else r[k]) for k in ROW_FIELDS})
+
+
+def plot_per_motion(ev: Evaluation, path: str | os.PathLike, title: str = "") -> None:
+    """Error per motion (mean over repeats) for each method, motions sorted by the first method's error —
+    the layout of the EBF paper's Figures 5 and 9."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    metric, _ = headline(ev)
+    per: dict[str, dict[str, list[float]]] = {}
+    for r in ev.rows:
+        per.setdefault(r["method"], {}).setdefault(r["file"], []).append(r[metric])
+    files = sorted(per[ev.methods[0]], key=lambda f: _mean(per[ev.methods[0]][f]))
+    fig, ax = plt.subplots(figsize=(10, 4.5))
+    for method in ev.methods:
+        ys = [_mean(per.get(method, {}).get(f, [math.nan])) for f in files]
+        if np.isfinite(ys).any():
+            ax.plot(range(len(files)), ys, ".-" if len(files) < 60 else "-", lw=1, ms=3, label=method)
+    ax.set_xlabel(f"motion (sorted by {ev.methods[0]} error), {len(files)} clips")
+    unit = "cm" if metric.endswith("cm") else "degrees"
+    ax.set_ylabel(f"{metric.replace('_', ' ')} ({unit})")
+    ax.set_title(title or f"{ev.data}: {ev.corruption}")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    with atomic_output(Path(path)) as tmp:
+        fig.savefig(tmp, dpi=110, format="png")
+    plt.close(fig)

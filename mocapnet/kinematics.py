@@ -1,0 +1,185 @@
+"""Forward kinematics, bone-length-preserving inverse kinematics and rotation helpers (scipy Rotation).
+
+BVH convention: a joint's rotation channels, in file order, compose as intrinsic rotations
+(``Zrotation Xrotation Yrotation`` → ``R = Rz @ Rx @ Ry``); a joint with position channels uses them as its
+local translation in place of its offset.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from mocapnet.motion import Motion, Skeleton
+
+
+def rotation_sequence(skeleton: Skeleton, joint: int) -> tuple[str, np.ndarray]:
+    """Intrinsic axis sequence (e.g. ``"ZXY"``) and the channel columns of ``joint``'s rotation channels."""
+    cols = skeleton.joint_channels(joint)
+    rot = [(c, name[0]) for c, name in zip(cols, skeleton.channels[joint]) if name.endswith("rotation")]
+    return "".join(a for _, a in rot), np.array([c for c, _ in rot], dtype=int)
+
+
+def local_rotations(skeleton: Skeleton, channels: np.ndarray) -> np.ndarray:
+    """Local rotation matrices ``[T, J, 3, 3]`` from channels ``[T, C]`` (degrees)."""
+    n_frames = channels.shape[0]
+    out = np.broadcast_to(np.eye(3), (n_frames, skeleton.n_joints, 3, 3)).copy()
+    for j in range(skeleton.n_joints):
+        seq, cols = rotation_sequence(skeleton, j)
+        if seq:
+            out[:, j] = Rotation.from_euler(seq, channels[:, cols], degrees=True).as_matrix()
+    return out
+
+
+def local_translations(skeleton: Skeleton, channels: np.ndarray) -> np.ndarray:
+    """Local translations ``[T, J, 3]`` (skeleton units): position channels where present, else offsets."""
+    n_frames = channels.shape[0]
+    out = np.broadcast_to(skeleton.offsets, (n_frames, skeleton.n_joints, 3)).copy()
+    for j in range(skeleton.n_joints):
+        for col, name in zip(skeleton.joint_channels(j), skeleton.channels[j]):
+            if name.endswith("position"):
+                out[:, j, "XYZ".index(name[0])] = channels[:, col]
+    return out
+
+
+def global_transforms(skeleton: Skeleton, channels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Global rotations ``[T, J, 3, 3]`` and positions ``[T, J, 3]`` (skeleton units)."""
+    rot_l = local_rotations(skeleton, channels)
+    trans_l = local_translations(skeleton, channels)
+    rot_g = np.empty_like(rot_l)
+    pos_g = np.empty_like(trans_l)
+    for j, p in enumerate(skeleton.parents):
+        if p < 0:
+            rot_g[:, j] = rot_l[:, j]
+            pos_g[:, j] = trans_l[:, j]
+        else:
+            rot_g[:, j] = rot_g[:, p] @ rot_l[:, j]
+            pos_g[:, j] = pos_g[:, p] + np.einsum("tab,tb->ta", rot_g[:, p], trans_l[:, j])
+    return rot_g, pos_g
+
+
+def end_site_positions(skeleton: Skeleton, rot_g: np.ndarray, pos_g: np.ndarray) -> np.ndarray:
+    """End Site positions ``[T, E, 3]`` (skeleton units) from global transforms."""
+    if not skeleton.end_parents:
+        return np.zeros((pos_g.shape[0], 0, 3))
+    par = np.array(skeleton.end_parents)
+    return pos_g[:, par] + np.einsum("teab,eb->tea", rot_g[:, par], skeleton.end_sites)
+
+
+def joint_positions(motion: Motion, channels: np.ndarray | None = None, end_sites: bool = False) -> np.ndarray:
+    """Forward kinematics: joint positions ``[T, J, 3]`` in cm (``[T, J + E, 3]`` with End Sites)."""
+    ch = motion.channels if channels is None else channels
+    rot_g, pos_g = global_transforms(motion.skeleton, ch)
+    if end_sites:
+        pos_g = np.concatenate([pos_g, end_site_positions(motion.skeleton, rot_g, pos_g)], axis=1)
+    return pos_g * motion.skeleton.cm_per_unit
+
+
+def rest_positions(skeleton: Skeleton) -> np.ndarray:
+    """Joint and End Site positions ``[J + E, 3]`` of the rest pose (offsets only), skeleton units."""
+    pos = np.zeros((skeleton.n_joints, 3))
+    for j, p in enumerate(skeleton.parents):
+        pos[j] = skeleton.offsets[j] + (pos[p] if p >= 0 else 0.0)
+    ends = pos[list(skeleton.end_parents)] + skeleton.end_sites if skeleton.end_parents else np.zeros((0, 3))
+    return np.concatenate([pos, ends])
+
+
+def matrix_to_euler(matrices: np.ndarray, seq: str, reference: np.ndarray | None = None) -> np.ndarray:
+    """Euler angles ``[T, len(seq)]`` (degrees, intrinsic ``seq``) of rotation matrices ``[T, 3, 3]``.
+
+    With ``reference`` (same shape as the result) each frame takes, of the two equivalent 3-axis
+    solutions, the one nearest the reference, and every angle is wrapped to within 180° of it.
+    """
+    ang = Rotation.from_matrix(matrices).as_euler(seq, degrees=True)
+    if reference is None:
+        return ang
+    ref = np.asarray(reference, dtype=np.float64)
+
+    def near(a: np.ndarray) -> np.ndarray:
+        return ref + (a - ref + 180.0) % 360.0 - 180.0
+
+    best = near(ang)
+    if len(seq) == 3:
+        # The other solution: (a + 180, 180 - b, c + 180) for Tait-Bryan, (a + 180, -b, c + 180) for proper.
+        alt = ang + np.array([180.0, 0.0, 180.0])
+        alt[:, 1] = (180.0 - ang[:, 1]) if seq[0] != seq[2] else -ang[:, 1]
+        alt = near(alt)
+        use_alt = np.abs(alt - ref).sum(axis=1) < np.abs(best - ref).sum(axis=1)
+        best[use_alt] = alt[use_alt]
+    return best
+
+
+def _align(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
+    """Rotations ``[T, 3, 3]`` that best map direction sets ``src [T, K, 3]`` onto ``dst [T, K, 3]``.
+
+    K = 1: the smallest rotation between the two directions; K ≥ 2: Kabsch (SVD).
+    """
+    if src.shape[1] == 1:
+        a = src[:, 0] / np.linalg.norm(src[:, 0], axis=-1, keepdims=True)
+        b = dst[:, 0] / np.linalg.norm(dst[:, 0], axis=-1, keepdims=True)
+        axis = np.cross(a, b)
+        sin = np.linalg.norm(axis, axis=-1)
+        cos = np.clip((a * b).sum(-1), -1.0, 1.0)
+        rotvec = axis / np.maximum(sin, 1e-12)[:, None] * np.arctan2(sin, cos)[:, None]
+        return Rotation.from_rotvec(rotvec).as_matrix()
+    h = np.einsum("tki,tkj->tij", src, dst)
+    u, _, vt = np.linalg.svd(h)
+    d = np.sign(np.linalg.det(np.einsum("tij,tjk->tik", vt.transpose(0, 2, 1), u.transpose(0, 2, 1))))
+    fix = np.broadcast_to(np.eye(3), h.shape).copy()
+    fix[:, 2, 2] = d
+    return vt.transpose(0, 2, 1) @ fix @ u.transpose(0, 2, 1)
+
+
+def inverse_kinematics(motion: Motion, target: np.ndarray) -> np.ndarray:
+    """Channels ``[T, C]`` whose forward kinematics points each bone at ``target`` while keeping every bone
+    length exactly (lengths come from the skeleton's offsets).
+
+    ``target`` holds joint and End Site positions ``[T, J + E, 3]`` in cm, as from
+    ``joint_positions(motion, end_sites=True)``. For each joint with children, the rotation that maps the
+    current (clean) bone directions onto the target directions is applied on top of the clean global
+    rotation (a single child leaves the twist as it was; several children are fitted by Kabsch). Context
+    joints and translation channels keep their values. Angles are taken nearest to ``motion.channels``.
+    """
+    sk = motion.skeleton
+    rot_g, pos_g = global_transforms(sk, motion.channels)
+    target = target / sk.cm_per_unit
+    n_j = sk.n_joints
+    trans_l = local_translations(sk, motion.channels)
+    # Child points of each joint: (index into target, local offset)
+    kids: list[list[tuple[int, np.ndarray]]] = [[] for _ in range(n_j)]
+    for c in range(n_j):
+        if sk.parents[c] >= 0:
+            kids[sk.parents[c]].append((c, None))
+    for e, p in enumerate(sk.end_parents):
+        kids[p].append((n_j + e, sk.end_sites[e]))
+    context = set(sk.context_joints)
+    new_rot_g = rot_g.copy()
+    new_pos = pos_g.copy()
+    out = motion.channels.copy()
+    for j in range(n_j):
+        p = sk.parents[j]
+        if p >= 0:
+            new_pos[:, j] = new_pos[:, p] + np.einsum("tab,tb->ta", new_rot_g[:, p], trans_l[:, j])
+        usable = [(k, off) for k, off in kids[j] if np.linalg.norm(trans_l[0, k] if off is None else off) > 1e-9]
+        if j in context or not usable:
+            # Keep the local rotation; the global one follows the (possibly changed) parent.
+            if p >= 0:
+                new_rot_g[:, j] = new_rot_g[:, p] @ np.swapaxes(rot_g[:, p], 1, 2) @ rot_g[:, j]
+            continue
+        local_off = np.stack(
+            [trans_l[:, k] if off is None else np.broadcast_to(off, (len(out), 3)) for k, off in usable], axis=1
+        )
+        cur_dir = np.einsum("tab,tkb->tka", rot_g[:, j], local_off)
+        tgt_dir = target[:, [k for k, _ in usable]] - new_pos[:, [j]]
+        new_rot_g[:, j] = _align(cur_dir, tgt_dir) @ rot_g[:, j]
+        local = new_rot_g[:, j] if p < 0 else np.swapaxes(new_rot_g[:, p], 1, 2) @ new_rot_g[:, j]
+        seq, cols = rotation_sequence(sk, j)
+        if seq:
+            out[:, cols] = matrix_to_euler(local, seq, reference=motion.channels[:, cols])
+    return out
+
+
+def geodesic_deg(rot_a: np.ndarray, rot_b: np.ndarray) -> np.ndarray:
+    """Angle (degrees) of ``rot_a^T rot_b`` for rotation matrices ``[..., 3, 3]``."""
+    trace = np.einsum("...ij,...ij->...", rot_a, rot_b)
+    return np.degrees(np.arccos(np.clip((trace - 1.0) / 2.0, -1.0, 1.0)))

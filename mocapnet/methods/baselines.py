@@ -1,0 +1,188 @@
+"""The baselines users already have: Gaussian smoothing and linear / cubic-spline interpolation.
+
+Pure array functions first (scipy style), then the registered methods built on them. Methods change only
+the skeleton's scored channels; gaps (mask True) are filled before any smoothing.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+from scipy.interpolate import CubicSpline
+from scipy.ndimage import gaussian_filter1d
+
+from mocapnet.corrupt import corrupt_motion, seed_for
+from mocapnet.methods.registry import MethodContext, register
+from mocapnet.motion import Markers, Motion
+
+
+def gaussian_smooth(channels: np.ndarray, sigma_s: float | np.ndarray, fps: float) -> np.ndarray:
+    """Gaussian smoothing along time of ``channels [T, C]`` with std ``sigma_s`` seconds (scalar or ``[C]``).
+
+    Edges are padded with the nearest value. ``sigma_s = 0`` returns the input.
+    """
+    sig = np.broadcast_to(np.asarray(sigma_s, dtype=np.float64) * fps, (channels.shape[1],))
+    out = channels.astype(np.float64, copy=True)
+    for value in np.unique(sig):
+        if value <= 0:
+            continue
+        cols = sig == value
+        out[:, cols] = gaussian_filter1d(channels[:, cols], sigma=value, axis=0, mode="nearest")
+    return out
+
+
+def _mask_groups(mask: np.ndarray) -> dict[bytes, np.ndarray]:
+    """Columns of ``mask [T, C]`` grouped by identical missing pattern (channels of one joint share one)."""
+    groups: dict[bytes, list[int]] = {}
+    for c in np.flatnonzero(mask.any(axis=0)):
+        groups.setdefault(np.packbits(mask[:, c]).tobytes(), []).append(c)
+    return {k: np.array(v) for k, v in groups.items()}
+
+
+def lerp_fill(channels: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """Linear interpolation over the masked samples of ``channels [T, C]`` (mask True = missing).
+
+    Missing samples before the first / after the last observed one take the nearest observed value.
+    Columns with no observed sample are left as they are.
+    """
+    out = np.array(channels, dtype=np.float64, copy=True)
+    t = np.arange(out.shape[0])
+    for cols in _mask_groups(mask).values():
+        miss = mask[:, cols[0]]
+        if miss.all():
+            continue
+        for c in cols:
+            out[miss, c] = np.interp(t[miss], t[~miss], out[~miss, c])
+    return out
+
+
+def spline_fill(channels: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """Cubic-spline interpolation (scipy ``CubicSpline``, not-a-knot) over masked samples of ``[T, C]``;
+    falls back to linear where fewer than 4 samples are observed, and holds values beyond the ends."""
+    out = np.array(channels, dtype=np.float64, copy=True)
+    t = np.arange(out.shape[0])
+    for cols in _mask_groups(mask).values():
+        miss = mask[:, cols[0]]
+        seen = ~miss
+        if seen.sum() < 4:
+            out[:, cols] = lerp_fill(out[:, cols], mask[:, cols])
+            continue
+        spline = CubicSpline(t[seen], out[seen][:, cols], axis=0)
+        inside = miss & (t > t[seen][0]) & (t < t[seen][-1])
+        out[np.ix_(inside, cols)] = spline(t[inside])
+        out[:, cols] = lerp_fill(out[:, cols], mask[:, cols] & ~inside[:, None])
+    return out
+
+
+def _scored_only(noisy: Motion, result: np.ndarray) -> np.ndarray:
+    """Keep unscored (context, translation) channels exactly as the input."""
+    out = noisy.channels.copy()
+    scored = noisy.skeleton.scored_mask
+    out[:, scored] = result[:, scored]
+    return out
+
+
+@register("noisy", "angles", help="the corrupted input itself (gaps stay missing and are not scored)")
+def _noisy(context: MethodContext):
+    def clean(noisy: Motion, mask: np.ndarray) -> np.ndarray:
+        return noisy.channels.copy()
+
+    return clean
+
+
+def _gaussian_method(sigma_s: float):
+    def factory(context: MethodContext):
+        def clean(noisy: Motion, mask: np.ndarray) -> np.ndarray:
+            filled = lerp_fill(noisy.channels, mask)
+            return _scored_only(noisy, gaussian_smooth(filled, sigma_s, noisy.fps))
+
+        return clean
+
+    return factory
+
+
+register("gaussian-58ms", "angles", help="Gaussian smoothing, sigma 58 ms (gaps filled linearly first)")(
+    _gaussian_method(0.058)
+)
+register("gaussian-125ms", "angles", help="Gaussian smoothing, sigma 125 ms (gaps filled linearly first)")(
+    _gaussian_method(0.125)
+)
+register("lerp+gaussian-58ms", "angles", help="linear interpolation over gaps, then Gaussian 58 ms")(
+    _gaussian_method(0.058)
+)
+
+
+@register("lerp", "angles", help="linear interpolation over gaps (no smoothing)")
+def _lerp(context: MethodContext):
+    def clean(noisy: Motion, mask: np.ndarray) -> np.ndarray:
+        return _scored_only(noisy, lerp_fill(noisy.channels, mask))
+
+    return clean
+
+
+@register("spline", "angles", help="cubic spline over gaps (no smoothing)")
+def _spline(context: MethodContext):
+    def clean(noisy: Motion, mask: np.ndarray) -> np.ndarray:
+        return _scored_only(noisy, spline_fill(noisy.channels, mask))
+
+    return clean
+
+
+SIGMA_GRID_S = (0.0, 0.01, 0.02, 0.03, 0.04, 0.05, 0.058, 0.07, 0.085, 0.1, 0.125, 0.15, 0.2, 0.25, 0.3)
+
+
+def tune_sigmas(
+    train: Sequence[Motion],
+    corruption: str,
+    corpus: str = "",
+    grid_s: Sequence[float] = SIGMA_GRID_S,
+    max_clips: int = 400,
+) -> np.ndarray:
+    """One Gaussian σ (seconds) per channel ``[C]`` minimising the squared error on corrupted training clips.
+
+    Each clip (at most ``max_clips``, evenly spaced) is corrupted once with ``corruption`` (seeded by
+    corpus, clip name and repeat -1, so never the test seeds); gaps are filled linearly before smoothing.
+    """
+    if not train:
+        raise ValueError("gaussian-tuned needs training clips (a corpus with training folds)")
+    step = max(1, len(train) // max_clips)
+    clips = list(train)[::step][:max_clips]
+    n_ch = clips[0].skeleton.n_channels
+    sse = np.zeros((len(grid_s), n_ch))
+    for motion in clips:
+        noisy, mask = corrupt_motion(
+            motion, corruption, np.random.default_rng(seed_for(corpus, motion.name, -1, corruption))
+        )
+        filled = lerp_fill(noisy, mask)
+        for g, sigma in enumerate(grid_s):
+            err = gaussian_smooth(filled, sigma, motion.fps) - motion.channels
+            sse[g] += np.nansum(err**2, axis=0)
+    return np.asarray(grid_s)[np.argmin(sse, axis=0)]
+
+
+@register("gaussian-tuned", "angles", help="Gaussian with one sigma per channel tuned on the training folds")
+def _gaussian_tuned(context: MethodContext, corruption: str | None = None, max_clips: int = 400):
+    sigmas = tune_sigmas(context.train, corruption or context.corruption, context.corpus, max_clips=max_clips)
+
+    def clean(noisy: Motion, mask: np.ndarray) -> np.ndarray:
+        return _scored_only(noisy, gaussian_smooth(lerp_fill(noisy.channels, mask), sigmas, noisy.fps))
+
+    clean.sigmas_s = sigmas  # type: ignore[attr-defined]
+    return clean
+
+
+def _point_fill(fill):
+    def factory(context: MethodContext):
+        def clean(noisy: Markers) -> np.ndarray:
+            t, m, _ = noisy.points.shape
+            flat_mask = np.repeat(~noisy.visible, 3, axis=1)
+            return fill(noisy.points.reshape(t, m * 3), flat_mask).reshape(t, m, 3)
+
+        return clean
+
+    return factory
+
+
+register("lerp", "points", help="linear interpolation of each coordinate over gaps")(_point_fill(lerp_fill))
+register("spline", "points", help="cubic spline of each coordinate over gaps")(_point_fill(spline_fill))
