@@ -40,6 +40,24 @@ ANGLE_CORRUPTIONS = (
 POINT_CORRUPTIONS = ("segment-gap:SEG:S", "marker-gap:S")
 
 
+def check_corruption(corruption: str) -> str:
+    """Return ``corruption`` if it is a known name (``ANGLE_CORRUPTIONS`` or a well-formed point gap), else
+    raise ValueError listing the known ones."""
+    parts = corruption.split(":")
+    ok = corruption in ANGLE_CORRUPTIONS or (
+        parts[0] == "segment-gap" and len(parts) == 3 and parts[1] in SEGMENTS and _number(parts[2]) is not None
+    ) or (parts[0] == "marker-gap" and len(parts) == 2 and _number(parts[1]) is not None)
+    if not ok:
+        kind, _, arg = corruption.partition("-")
+        ok = kind in ("angular", "uniform") and _number(arg) is not None
+        ok = ok or (kind == "spatial" and arg.endswith("cm") and _number(arg[:-2]) is not None)
+    if not ok:
+        raise ValueError(
+            f"unknown corruption {corruption!r}; known: {', '.join(ANGLE_CORRUPTIONS + POINT_CORRUPTIONS)}"
+        )
+    return corruption
+
+
 def seed_for(corpus: str, file: str, repeat: int, corruption: str = "") -> int:
     """Deterministic seed from (corpus, file name, repeat, corruption) so every run scores the same inputs."""
     digest = hashlib.sha256(f"{corpus}|{file}|{repeat}|{corruption}".encode()).digest()
@@ -63,19 +81,32 @@ def uniform_noise(channels: np.ndarray, scored: np.ndarray, k: float, rng: np.ra
     return channels + rng.uniform(-1.0, 1.0, channels.shape) * half
 
 
-def constant_bias(channels: np.ndarray, scored: np.ndarray, k: float, rng: np.random.Generator) -> np.ndarray:
-    """Add a constant offset of ``±k·σ_c`` (random sign per channel) to the scored channels."""
+def constant_bias(
+    channels: np.ndarray, scored: np.ndarray, k: float, rng: np.random.Generator, sigma: np.ndarray | None = None
+) -> np.ndarray:
+    """Add a constant offset of ``±k·σ_c`` (random sign per channel) to the scored channels; ``sigma``
+    ``[C]`` overrides ``σ_c`` (pass the clean clip's when ``channels`` is already noisy)."""
     sign = rng.choice([-1.0, 1.0], size=channels.shape[1])
-    return channels + sign * k * channel_std(channels) * scored
+    std = channel_std(channels) if sigma is None else sigma
+    return channels + sign * k * std * scored
 
 
-def sine_bias(channels: np.ndarray, scored: np.ndarray, k: float, fps: float, rng: np.random.Generator) -> np.ndarray:
-    """Add ``k·σ_c·sin(2π f t + φ)`` per channel, f uniform in [0.1, 1] Hz, φ uniform in [0, 2π)."""
+def sine_bias(
+    channels: np.ndarray,
+    scored: np.ndarray,
+    k: float,
+    fps: float,
+    rng: np.random.Generator,
+    sigma: np.ndarray | None = None,
+) -> np.ndarray:
+    """Add ``k·σ_c·sin(2π f t + φ)`` per channel, f uniform in [0.1, 1] Hz, φ uniform in [0, 2π); ``sigma``
+    ``[C]`` overrides ``σ_c``."""
     n_frames, n_ch = channels.shape
     freq = rng.uniform(0.1, 1.0, n_ch)
     phase = rng.uniform(0.0, 2 * np.pi, n_ch)
     t = np.arange(n_frames)[:, None] / fps
-    return channels + k * channel_std(channels) * scored * np.sin(2 * np.pi * freq * t + phase)
+    std = channel_std(channels) if sigma is None else sigma
+    return channels + k * std * scored * np.sin(2 * np.pi * freq * t + phase)
 
 
 def spatial_noise(motion: Motion, std_cm: float | np.ndarray, rng: np.random.Generator) -> np.ndarray:
@@ -197,6 +228,13 @@ def joint_mask_to_channels(motion: Motion, joint_mask: np.ndarray) -> np.ndarray
     return mask
 
 
+def _number(text: str) -> float | None:
+    try:
+        return float(text)
+    except ValueError:
+        return None
+
+
 def _apply_mask(channels: np.ndarray, mask: np.ndarray) -> np.ndarray:
     out = channels.copy()
     out[mask] = np.nan
@@ -214,18 +252,19 @@ def corrupt_motion(motion: Motion, corruption: str, rng: np.random.Generator) ->
     if corruption == "none":
         return ch.copy(), no_gaps
     kind, _, arg = corruption.partition("-")
-    if kind == "angular":
-        return angular_noise(ch, scored, float(arg), rng), no_gaps
-    if kind == "uniform":
-        return uniform_noise(ch, scored, float(arg), rng), no_gaps
+    level = _number(arg.removesuffix("cm"))
+    if kind == "angular" and level is not None:
+        return angular_noise(ch, scored, level, rng), no_gaps
+    if kind == "uniform" and level is not None:
+        return uniform_noise(ch, scored, level, rng), no_gaps
     if corruption == "spatial-ends":
         return spatial_noise(motion, end_joint_std(motion), rng), no_gaps
-    if kind == "spatial" and arg.endswith("cm"):
-        return spatial_noise(motion, float(arg[:-2]), rng), no_gaps
+    if kind == "spatial" and arg.endswith("cm") and level is not None:
+        return spatial_noise(motion, level, rng), no_gaps
     if corruption == "bias-const":
-        return constant_bias(angular_noise(ch, scored, 0.5, rng), scored, 0.5, rng), no_gaps
+        return constant_bias(angular_noise(ch, scored, 0.5, rng), scored, 0.5, rng, channel_std(ch)), no_gaps
     if corruption == "bias-sine":
-        return sine_bias(angular_noise(ch, scored, 0.5, rng), scored, 0.5, motion.fps, rng), no_gaps
+        return sine_bias(angular_noise(ch, scored, 0.5, rng), scored, 0.5, motion.fps, rng, channel_std(ch)), no_gaps
     n_j = motion.skeleton.n_joints
     if corruption == "gaps":
         mask = joint_mask_to_channels(motion, gap_mask(motion.n_frames, n_j, motion.fps, rng))

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from mocapnet.corpus import Corpus, load_corpus
-from mocapnet.corrupt import ANGLE_CORRUPTIONS, corrupt_markers, corrupt_motion, seed_for
+from mocapnet.corrupt import ANGLE_CORRUPTIONS, check_corruption, corrupt_markers, corrupt_motion, seed_for
 from mocapnet.evaluate import metrics
 from mocapnet.io.atomic import MocapFileError
 from mocapnet.io.c3d import read_c3d
@@ -258,6 +258,7 @@ def evaluate(
     folds; without it every clip is scored and trainable baselines use fold 0's training folds. The
     reference baselines needed for ratios are added when missing.
     """
+    check_corruption(corruption)
     if is_c3d_data(data):
         if corruption in ANGLE_CORRUPTIONS:
             raise ValueError(f"{data}: C3D data takes segment-gap:SEG:S or marker-gap:S, not {corruption!r}")

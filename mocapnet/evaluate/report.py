@@ -100,7 +100,7 @@ def table(ev: Evaluation, markdown: bool = False) -> str:
         lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
         lines += ["| " + " | ".join(r) + " |" for r in body]
         return "\n".join(lines) + f"\n\n{note}"
-    widths = [max(len(h), *(len(r[i]) for r in body)) for i, h in enumerate(head)]
+    widths = [max([len(h)] + [len(r[i]) for r in body]) for i, h in enumerate(head)]
     fmt_row = lambda r: "  ".join(v.ljust(w) if i == 0 else v.rjust(w) for i, (v, w) in enumerate(zip(r, widths)))  # noqa: E731
     return "\n".join([fmt_row(head), fmt_row(["-" * w for w in widths])] + [fmt_row(r) for r in body] + [note])
 

@@ -202,7 +202,12 @@ def read_bvh(path: str | os.PathLike, cm_per_unit: float | None = None, unwrap: 
     MocapFileError naming the file and line for any syntax or value error.
     """
     path = Path(path)
-    text = _open_text(path)
+    return parse_bvh(_open_text(path), path, cm_per_unit, unwrap)
+
+
+def parse_bvh(text: str, path: str | os.PathLike = "<text>", cm_per_unit: float | None = None, unwrap: bool = True) -> Motion:
+    """Parse BVH ``text``; ``path`` is used for the clip name and in error messages (see ``read_bvh``)."""
+    path = Path(path)
     lines = text.splitlines()
     skeleton, motion_line = _parse_hierarchy(path, lines)
     n_ch = skeleton.n_channels

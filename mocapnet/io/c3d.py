@@ -7,6 +7,7 @@ negative (the C3D convention). Positions are converted to centimetres from ``POI
 from __future__ import annotations
 
 import os
+import re
 from pathlib import Path
 
 import numpy as np
@@ -16,7 +17,9 @@ from mocapnet.motion import Markers
 
 _UNIT_TO_CM = {"mm": 0.1, "cm": 1.0, "m": 100.0, "dm": 10.0, "in": 2.54, "inch": 2.54}
 # POINT groups that hold model outputs (joint angles, forces, …) rather than markers.
-_MODEL_OUTPUT_GROUPS = ("ANGLES", "FORCES", "MOMENTS", "POWERS", "SCALARS", "REACTIONS")
+_MODEL_OUTPUT_GROUPS = ("ANGLES", "FORCES", "MOMENTS", "POWERS", "SCALARS", "REACTIONS", "MODELED_MARKERS")
+# Plug-in-Gait virtual points: segment code + Origin/Anterior/Lateral/Proximal axis point (PELO, LFEA, …).
+_PIG_VIRTUAL = re.compile(r"^(PEL|[LR](FE|TI|FO|TO|CL|HU|RA|HN)|TRX|HED|CSP)[OALP]$|^CENTRE", re.IGNORECASE)
 
 
 def _param(group: dict, name: str, default=None):
@@ -51,7 +54,8 @@ def read_c3d(path: str | os.PathLike, markers_only: bool = True) -> Markers:
     Parameters
     ----------
     path : the ``.c3d`` file.
-    markers_only : drop model outputs listed under ``POINT:ANGLES/FORCES/MOMENTS/POWERS/SCALARS`` and the
+    markers_only : drop model outputs listed under ``POINT:ANGLES/FORCES/MOMENTS/POWERS/SCALARS/
+        MODELED_MARKERS``, Plug-in-Gait virtual axis points (``PELO``, ``LFEA``, …, ``Centre*``) and the
         unlabelled ``*N`` points, keeping physical markers only.
 
     Returns
@@ -90,7 +94,13 @@ def read_c3d(path: str | os.PathLike, markers_only: bool = True) -> Markers:
     if markers_only:
         model = {str(s).strip() for g in _MODEL_OUTPUT_GROUPS for s in (_param(point, g, []) or [])}
         keep = np.array(
-            [i for i, lab in enumerate(labels) if lab not in model and not lab.rsplit(":", 1)[-1].startswith("*")],
+            [
+                i
+                for i, lab in enumerate(labels)
+                if lab not in model
+                and not lab.rsplit(":", 1)[-1].startswith("*")
+                and not _PIG_VIRTUAL.match(lab.rsplit(":", 1)[-1])
+            ],
             dtype=int,
         )
         if keep.size == 0:

@@ -1,0 +1,70 @@
+import numpy as np
+import pytest
+
+from mocapnet.corrupt import corrupt_motion
+from mocapnet.methods import MethodContext, build_method
+from mocapnet.methods.baselines import gaussian_smooth, lerp_fill, spline_fill, tune_sigmas
+from mocapnet.methods.registry import parse_method
+from mocapnet.motion import Motion
+
+
+def test_gaussian_matches_scipy_and_scales_with_fps():
+    from scipy.ndimage import gaussian_filter1d
+
+    x = np.random.default_rng(0).normal(size=(200, 3))
+    np.testing.assert_allclose(gaussian_smooth(x, 0.058, 120.0), gaussian_filter1d(x, 0.058 * 120, axis=0, mode="nearest"))
+    np.testing.assert_array_equal(gaussian_smooth(x, 0.0, 30.0), x)
+    per_channel = gaussian_smooth(x, np.array([0.0, 0.1, 0.2]), 30.0)
+    np.testing.assert_array_equal(per_channel[:, 0], x[:, 0])
+    np.testing.assert_allclose(per_channel[:, 2], gaussian_filter1d(x[:, 2], 6.0, mode="nearest"))
+
+
+def test_lerp_and_spline_fill():
+    t = np.arange(100.0)
+    x = np.stack([2 * t + 1, (t / 10) ** 3], axis=1)
+    mask = np.zeros_like(x, dtype=bool)
+    mask[30:50] = True
+    noisy = np.where(mask, np.nan, x)
+    np.testing.assert_allclose(lerp_fill(noisy, mask)[:, 0], x[:, 0])
+    np.testing.assert_allclose(spline_fill(noisy, mask), x, atol=1e-9)  # a cubic is reproduced exactly
+    edge = mask.copy()
+    edge[:5] = True
+    filled = lerp_fill(np.where(edge, np.nan, x), edge)
+    assert np.isfinite(filled).all() and filled[0, 0] == x[5, 0]
+
+
+def test_methods_only_touch_scored_channels(cmu_short):
+    noisy, mask = corrupt_motion(cmu_short, "noise+gaps", np.random.default_rng(0))
+    scored = cmu_short.skeleton.scored_mask
+    for name in ("gaussian-58ms", "gaussian-125ms", "lerp", "spline", "lerp+gaussian-58ms"):
+        out = build_method(name).clean(cmu_short.with_channels(noisy), mask)
+        assert np.isfinite(out).all(), name
+        np.testing.assert_array_equal(out[:, ~scored], noisy[:, ~scored])
+        np.testing.assert_array_equal(out[~mask & ~scored[None]], noisy[~mask & ~scored[None]])
+
+
+def test_gaussian_beats_noisy(cmu_short):
+    noisy, mask = corrupt_motion(cmu_short, "angular-0.5", np.random.default_rng(0))
+    out = build_method("gaussian-58ms").clean(cmu_short.with_channels(noisy), mask)
+    s = cmu_short.skeleton.scored_mask
+    assert np.abs(out - cmu_short.channels)[:, s].mean() < 0.5 * np.abs(noisy - cmu_short.channels)[:, s].mean()
+
+
+def test_gaussian_tuned_picks_per_channel_sigma(cmu):
+    clips = [Motion(cmu.skeleton, cmu.channels[i : i + 500], cmu.fps, f"c{i}") for i in range(0, 2000, 500)]
+    sig = tune_sigmas(clips, "angular-0.5")
+    assert sig.shape == (cmu.skeleton.n_channels,)
+    live = cmu.skeleton.scored_mask & (cmu.channels.std(axis=0) > 1.0)
+    assert (sig[live] > 0).all()
+    method = build_method("gaussian-tuned", MethodContext(train=clips, corruption="angular-0.5"))
+    with pytest.raises(ValueError, match="training clips"):
+        build_method("gaussian-tuned", MethodContext())
+    assert method.space == "angles"
+
+
+def test_parse_method_strings():
+    assert parse_method("gaussian-58ms") == ("gaussian-58ms", {})
+    assert parse_method("knn:k=8,levels=3,database=/a/b") == ("knn", {"k": 8, "levels": 3, "database": "/a/b"})
+    assert parse_method("ebd+ebf=a.ckpt,b.ckpt") == ("ebd+ebf", {"checkpoints": ["a.ckpt", "b.ckpt"]})
+    with pytest.raises(KeyError, match="unknown method 'nope'"):
+        build_method("nope")

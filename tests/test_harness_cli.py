@@ -1,0 +1,85 @@
+import csv
+
+import numpy as np
+import pytest
+
+from mocapnet.cli import main
+from mocapnet.evaluate.harness import evaluate
+from mocapnet.evaluate.report import plot_per_motion, summarize, table
+from mocapnet.io import read_bvh, read_c3d
+from tests.conftest import SAMPLE_BVH, SAMPLE_C3D_NAN
+
+
+def test_evaluate_sample_is_reproducible():
+    a = evaluate("sample", "angular-0.5", ["gaussian-58ms"], repeats=2, progress=False)
+    b = evaluate("sample", "angular-0.5", ["gaussian-58ms"], repeats=2, progress=False)
+    assert [r["angle_err_deg"] for r in a.rows] == [r["angle_err_deg"] for r in b.rows]
+    summary = {e["method"]: e for e in summarize(a)}
+    assert set(summary) == {"gaussian-58ms", "noisy", "gaussian-125ms"}  # references added for the ratio
+    assert summary["gaussian-58ms"]["ratio"] == 1.0
+    assert summary["noisy"]["angle_err_deg"] > 2 * summary["gaussian-58ms"]["angle_err_deg"]
+
+
+def test_gap_evaluation_uses_lerp_reference(tmp_path):
+    ev = evaluate("sample", "gaps", ["spline"], repeats=1, progress=False)
+    summary = {e["method"]: e for e in summarize(ev)}
+    assert summary["lerp"]["ratio"] == 1.0 and np.isfinite(summary["spline"]["gap_err_deg"])
+    assert "gap err" in table(ev) and "| lerp |" in table(ev, markdown=True)
+    plot_per_motion(ev, tmp_path / "p.png")
+    assert (tmp_path / "p.png").stat().st_size > 1000
+
+
+def test_c3d_folder_evaluation(tmp_path):
+    folder = tmp_path / "c3d"
+    folder.mkdir()
+    (folder / "a.c3d").write_bytes(SAMPLE_C3D_NAN.read_bytes())
+    ev = evaluate(str(folder), "segment-gap:right-arm:1", ["spline"], repeats=2, progress=False)
+    assert ev.space == "points"
+    summary = {e["method"]: e for e in summarize(ev)}
+    assert 0 < summary["spline"]["point_err_cm"] < summary["lerp"]["point_err_cm"]
+    with pytest.raises(ValueError, match="works on angles"):
+        evaluate(str(folder), "segment-gap:right-arm:1", ["gaussian-58ms"], repeats=1, progress=False)
+
+
+def test_cli_evaluate_writes_csv(tmp_path, capsys):
+    out = tmp_path / "s.csv"
+    rc = main(["evaluate", "--data", "sample", "--corruption", "angular-0.5", "--method", "gaussian-58ms",
+               "--repeats", "1", "--csv", str(out), "--quiet"])
+    assert rc == 0
+    printed = capsys.readouterr().out
+    assert "gaussian-58ms" in printed and "ratio" in printed
+    rows = list(csv.DictReader(out.open()))
+    assert len(rows) == 3
+    assert list(rows[0])[:7] == ["method", "corruption", "file", "repeat", "angle_err_deg", "gap_err_deg", "pos_err_cm"][:4] + list(rows[0])[4:7]
+    assert {"angle_err_deg", "gap_err_deg", "pos_err_cm"} <= set(rows[0])
+
+
+def test_cli_clean_c3d_and_bvh(tmp_path, capsys):
+    out = tmp_path / "filled.c3d"
+    assert main(["clean", str(SAMPLE_C3D_NAN), "-o", str(out), "--method", "spline"]) == 0
+    assert read_c3d(out).visible.all()
+    bvh_out = tmp_path / "smooth.bvh"
+    assert main(["clean", str(SAMPLE_BVH), "-o", str(bvh_out), "--method", "gaussian-58ms"]) == 0
+    assert read_bvh(bvh_out).n_frames == 2752
+
+
+def test_cli_errors_exit_2_and_write_nothing(tmp_path, capsys):
+    bad = tmp_path / "bad.bvh"
+    bad.write_text("HIERARCHY\nROOT a\n{\n OFFSET 0 0 0\n CHANNELS 1 Xrotation\n}\nMOTION\nFrames: 2\nFrame Time: 0.1\n1\nx\n")
+    out = tmp_path / "out.bvh"
+    assert main(["clean", str(bad), "-o", str(out), "--method", "lerp"]) == 2
+    err = capsys.readouterr().err
+    assert "bad.bvh:11" in err and "'x' is not a number" in err
+    assert not out.exists()
+    assert main(["clean", str(SAMPLE_C3D_NAN), "-o", str(SAMPLE_C3D_NAN), "--method", "lerp"]) == 2
+    assert "same as the input" in capsys.readouterr().err
+    assert main(["evaluate", "--data", "sample", "--corruption", "bogus", "--quiet"]) == 2
+    assert "unknown corruption" in capsys.readouterr().err
+    assert main(["evaluate", "--data", "sample", "--method", "nope", "--quiet"]) == 2
+
+
+def test_help_has_examples(capsys):
+    for verb in ("evaluate", "clean"):
+        with pytest.raises(SystemExit):
+            main([verb, "--help"])
+        assert "examples:" in capsys.readouterr().out
