@@ -126,18 +126,26 @@ def plot_per_motion(ev: Evaluation, path: str | os.PathLike, title: str = "") ->
     per: dict[str, dict[str, list[float]]] = {}
     for r in ev.rows:
         per.setdefault(r["method"], {}).setdefault(r["file"], []).append(r[metric])
-    files = sorted(per[ev.methods[0]], key=lambda f: _mean(per[ev.methods[0]][f]))
-    fig, ax = plt.subplots(figsize=(10, 4.5))
-    for method in ev.methods:
-        ys = [_mean(per.get(method, {}).get(f, [math.nan])) for f in files]
-        if np.isfinite(ys).any():
-            ax.plot(range(len(files)), ys, ".-" if len(files) < 60 else "-", lw=1, ms=3, label=method)
-    ax.set_xlabel(f"motion (sorted by {ev.methods[0]} error), {len(files)} clips")
+    shown = [m for m in ev.methods if np.isfinite([_mean(v) for v in per.get(m, {}).values()] or [np.nan]).any()]
+    key = shown[0]
+    files = sorted(per[key], key=lambda f: _mean(per[key][f]))
     unit = "cm" if metric.endswith("cm") else "degrees"
+    fig, ax = plt.subplots(figsize=(10, 4.5))
+    if len(files) <= 3:  # too few motions for a curve: one bar per method, a dot per clip and repeat
+        for i, method in enumerate(shown):
+            values = [v for f in files for v in per[method].get(f, [])]
+            ax.bar(i, _mean(values), color=f"C{i}", alpha=0.6)
+            ax.plot([i] * len(values), values, "k.", ms=4)
+        ax.set_xticks(range(len(shown)), shown, rotation=20, ha="right", fontsize=8)
+    else:
+        for method in shown:
+            ys = [_mean(per[method].get(f, [math.nan])) for f in files]
+            ax.plot(range(len(files)), ys, ".-" if len(files) < 60 else "-", lw=1, ms=3, label=method)
+        ax.set_xlabel(f"motion (sorted by {key} error), {len(files)} clips")
+        ax.legend(fontsize=8)
     ax.set_ylabel(f"{metric.replace('_', ' ')} ({unit})")
     ax.set_title(title or f"{ev.data}: {ev.corruption}")
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
     fig.tight_layout()
     with atomic_output(Path(path)) as tmp:
         fig.savefig(tmp, dpi=110, format="png")
