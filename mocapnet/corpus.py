@@ -141,16 +141,30 @@ class Corpus:
     folds: dict[str, int]
     skipped: list[tuple[str, str]] = field(default_factory=list)
 
-    def split(self, fold: int) -> tuple[list[Motion], list[Motion], list[Motion]]:
+    def split(
+        self, fold: int, holdout_style: str | None = None
+    ) -> tuple[list[Motion], list[Motion], list[Motion]]:
         """``(train, validation, test)`` for ``fold``: test = fold k, validation = fold k+1 mod 5, train =
-        the other three."""
+        the other three. ``holdout_style`` (e.g. ``"elderly"``) removes every clip of that style from train
+        and validation, for the unseen-style check (score it with ``style_clips``)."""
         if not 0 <= fold < N_FOLDS:
             raise ValueError(f"fold must be in 0..{N_FOLDS - 1}, got {fold}")
+        if holdout_style is not None and not self.style_clips(holdout_style):
+            styles = sorted({style_label(m.name) for m in self.motions})
+            raise ValueError(f"{self.name}: no clip of style {holdout_style!r}; styles: {', '.join(styles)}")
         val_fold = (fold + 1) % N_FOLDS
-        train = [m for m in self.motions if self.folds[m.name] not in (fold, val_fold)]
-        val = [m for m in self.motions if self.folds[m.name] == val_fold]
+
+        def learnable(m: Motion) -> bool:
+            return holdout_style is None or style_label(m.name) != holdout_style
+
+        train = [m for m in self.motions if self.folds[m.name] not in (fold, val_fold) and learnable(m)]
+        val = [m for m in self.motions if self.folds[m.name] == val_fold and learnable(m)]
         test = [m for m in self.motions if self.folds[m.name] == fold]
         return train, val, test
+
+    def style_clips(self, style: str) -> list[Motion]:
+        """Every clip of one style label (Bandai file names ``dataset-N_{content}_{style}_{id}``)."""
+        return [m for m in self.motions if style_label(m.name) == style]
 
     @property
     def n_frames(self) -> int:

@@ -66,3 +66,18 @@ def test_bandai2_second_load_is_fast(shared, tmp_path, monkeypatch):
     corpus = load_corpus("bandai2", progress=False, limit=300)
     assert time.perf_counter() - start < 1.0  # well under a second per 100 files
     assert len(corpus.motions) == 300
+
+
+def test_holdout_style(tmp_path, monkeypatch, bandai):
+    monkeypatch.setenv("MOCAPNET_CACHE", str(tmp_path / "cache"))
+    folder = tmp_path / "styles"
+    folder.mkdir()
+    for style in ("normal", "elderly"):
+        for i in range(10):
+            (folder / f"dataset-2_walk_{style}_{i:03d}.bvh").write_text(format_bvh(bandai))
+    corpus = load_corpus(folder, progress=False)
+    train, val, test = corpus.split(0, holdout_style="elderly")
+    assert train and all("_elderly_" not in m.name for m in train + val)
+    assert len(corpus.style_clips("elderly")) == 10
+    with pytest.raises(ValueError, match="no clip of style 'tired'"):
+        corpus.split(0, holdout_style="tired")
