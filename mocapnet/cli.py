@@ -134,9 +134,12 @@ def _methods(args: argparse.Namespace) -> int:
 
 
 def _train(args: argparse.Namespace) -> int:
-    from mocapnet.nn.train import main as train_main
+    import subprocess
 
-    return int(train_main(args.overrides) or 0)
+    script = Path(__file__).resolve().parents[1] / "scripts" / "train.py"
+    if not script.exists():
+        raise FileNotFoundError(f"{script}: training needs a source checkout of mocapnet (scripts/ and conf/)")
+    return subprocess.call([sys.executable, str(script), *args.overrides])
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -188,7 +191,14 @@ def build_parser() -> argparse.ArgumentParser:
     me = sub.add_parser("methods", help="list the available methods")
     me.set_defaults(func=_methods)
 
-    tr = sub.add_parser("train", help="train EBF/EBD (Hydra overrides follow, e.g. experiment=sample_quick)")
+    tr = sub.add_parser(
+        "train",
+        help="train EBF/EBD (runs scripts/train.py with Hydra overrides, e.g. experiment=sample_quick)",
+        description="Train a network from the Hydra configs in conf/; arguments are Hydra overrides.",
+        epilog="examples:\n  mocapnet train experiment=sample_quick\n  mocapnet train experiment=bandai2_ebf "
+        "trainer.max_time=00:00:20:00",
+        formatter_class=raw,
+    )
     tr.add_argument("overrides", nargs="*", help="Hydra overrides, e.g. experiment=bandai2_ebf trainer.max_epochs=5")
     tr.set_defaults(func=_train)
     return parser
