@@ -137,11 +137,17 @@ def plot_per_motion(ev: Evaluation, path: str | os.PathLike, title: str = "") ->
             ax.bar(i, _mean(values), color=f"C{i}", alpha=0.6)
             ax.plot([i] * len(values), values, "k.", ms=4)
         ax.set_xticks(range(len(shown)), shown, rotation=20, ha="right", fontsize=8)
-    else:
+    elif len(files) <= 60:
         for method in shown:
             ys = [_mean(per[method].get(f, [math.nan])) for f in files]
-            ax.plot(range(len(files)), ys, ".-" if len(files) < 60 else "-", lw=1, ms=3, label=method)
+            ax.plot(range(len(files)), ys, ".-", lw=1, ms=3, label=method)
         ax.set_xlabel(f"motion (sorted by {key} error), {len(files)} clips")
+        ax.legend(fontsize=8)
+    else:  # many motions: each method's per-motion errors sorted on their own (a readable distribution)
+        for method in shown:
+            ys = np.sort([_mean(v) for v in per[method].values()])
+            ax.plot(np.linspace(0, 100, len(ys)), ys, lw=1.2, label=f"{method} (median {np.nanmedian(ys):.2f})")
+        ax.set_xlabel(f"percent of motions ({len(files)} clips), each method sorted by its own error")
         ax.legend(fontsize=8)
     ax.set_ylabel(f"{metric.replace('_', ' ')} ({unit})")
     ax.set_title(title or f"{ev.data}: {ev.corruption}")
