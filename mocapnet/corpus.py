@@ -127,7 +127,9 @@ def load_folds(corpus: str, names: list[str]) -> dict[str, int]:
         missing = [n for n in names if n not in folds]
         if not missing:
             return {n: folds[n] for n in names}
-        warnings.warn(f"{path}: {len(missing)} files not in the committed split (e.g. {missing[0]}); recomputing", stacklevel=2)
+        warnings.warn(
+            f"{path}: {len(missing)} files not in the committed split (e.g. {missing[0]}); recomputing", stacklevel=2
+        )
     return make_folds(names)
 
 
@@ -141,9 +143,7 @@ class Corpus:
     folds: dict[str, int]
     skipped: list[tuple[str, str]] = field(default_factory=list)
 
-    def split(
-        self, fold: int, holdout_style: str | None = None
-    ) -> tuple[list[Motion], list[Motion], list[Motion]]:
+    def split(self, fold: int, holdout_style: str | None = None) -> tuple[list[Motion], list[Motion], list[Motion]]:
         """``(train, validation, test)`` for ``fold``: test = fold k, validation = fold k+1 mod 5, train =
         the other three. ``holdout_style`` (e.g. ``"elderly"``) removes every clip of that style from train
         and validation, for the unseen-style check (score it with ``style_clips``)."""

@@ -44,9 +44,11 @@ def check_corruption(corruption: str) -> str:
     """Return ``corruption`` if it is a known name (``ANGLE_CORRUPTIONS`` or a well-formed point gap), else
     raise ValueError listing the known ones."""
     parts = corruption.split(":")
-    ok = corruption in ANGLE_CORRUPTIONS or (
-        parts[0] == "segment-gap" and len(parts) == 3 and parts[1] in SEGMENTS and _number(parts[2]) is not None
-    ) or (parts[0] == "marker-gap" and len(parts) == 2 and _number(parts[1]) is not None)
+    ok = (
+        corruption in ANGLE_CORRUPTIONS
+        or (parts[0] == "segment-gap" and len(parts) == 3 and parts[1] in SEGMENTS and _number(parts[2]) is not None)
+        or (parts[0] == "marker-gap" and len(parts) == 2 and _number(parts[1]) is not None)
+    )
     if not ok:
         kind, _, arg = corruption.partition("-")
         ok = kind in ("angular", "uniform") and _number(arg) is not None

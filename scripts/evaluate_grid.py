@@ -56,8 +56,14 @@ def main(cfg: DictConfig) -> None:
             plot = out / f"{ev.data}_{corruption.replace(':', '-')}.png"
             plot_per_motion(ev, plot, title=f"{ev.data}: {corruption}")
             n_files = len({r["file"] for r in ev.rows})
-            lines += ["", f"## {ev.data}: {corruption} ({n_files} clips)", "", table(ev, markdown=True), "",
-                      f"![error per motion]({plot.name})"]
+            lines += [
+                "",
+                f"## {ev.data}: {corruption} ({n_files} clips)",
+                "",
+                table(ev, markdown=True),
+                "",
+                f"![error per motion]({plot.name})",
+            ]
             for name, reason in ev.skipped:
                 lines.append(f"- skipped {name}: {reason}")
             print(f"{ev.data}: {corruption}\n{table(ev)}\n", flush=True)

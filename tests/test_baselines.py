@@ -12,7 +12,9 @@ def test_gaussian_matches_scipy_and_scales_with_fps():
     from scipy.ndimage import gaussian_filter1d
 
     x = np.random.default_rng(0).normal(size=(200, 3))
-    np.testing.assert_allclose(gaussian_smooth(x, 0.058, 120.0), gaussian_filter1d(x, 0.058 * 120, axis=0, mode="nearest"))
+    np.testing.assert_allclose(
+        gaussian_smooth(x, 0.058, 120.0), gaussian_filter1d(x, 0.058 * 120, axis=0, mode="nearest")
+    )
     np.testing.assert_array_equal(gaussian_smooth(x, 0.0, 30.0), x)
     per_channel = gaussian_smooth(x, np.array([0.0, 0.1, 0.2]), 30.0)
     np.testing.assert_array_equal(per_channel[:, 0], x[:, 0])

@@ -43,14 +43,32 @@ def test_c3d_folder_evaluation(tmp_path):
 
 def test_cli_evaluate_writes_csv(tmp_path, capsys):
     out = tmp_path / "s.csv"
-    rc = main(["evaluate", "--data", "sample", "--corruption", "angular-0.5", "--method", "gaussian-58ms",
-               "--repeats", "1", "--csv", str(out), "--quiet"])
+    rc = main(
+        [
+            "evaluate",
+            "--data",
+            "sample",
+            "--corruption",
+            "angular-0.5",
+            "--method",
+            "gaussian-58ms",
+            "--repeats",
+            "1",
+            "--csv",
+            str(out),
+            "--quiet",
+        ]
+    )
     assert rc == 0
     printed = capsys.readouterr().out
     assert "gaussian-58ms" in printed and "ratio" in printed
     rows = list(csv.DictReader(out.open()))
     assert len(rows) == 3
-    assert list(rows[0])[:7] == ["method", "corruption", "file", "repeat", "angle_err_deg", "gap_err_deg", "pos_err_cm"][:4] + list(rows[0])[4:7]
+    assert (
+        list(rows[0])[:7]
+        == ["method", "corruption", "file", "repeat", "angle_err_deg", "gap_err_deg", "pos_err_cm"][:4]
+        + list(rows[0])[4:7]
+    )
     assert {"angle_err_deg", "gap_err_deg", "pos_err_cm"} <= set(rows[0])
 
 
@@ -65,7 +83,9 @@ def test_cli_clean_c3d_and_bvh(tmp_path, capsys):
 
 def test_cli_errors_exit_2_and_write_nothing(tmp_path, capsys):
     bad = tmp_path / "bad.bvh"
-    bad.write_text("HIERARCHY\nROOT a\n{\n OFFSET 0 0 0\n CHANNELS 1 Xrotation\n}\nMOTION\nFrames: 2\nFrame Time: 0.1\n1\nx\n")
+    bad.write_text(
+        "HIERARCHY\nROOT a\n{\n OFFSET 0 0 0\n CHANNELS 1 Xrotation\n}\nMOTION\nFrames: 2\nFrame Time: 0.1\n1\nx\n"
+    )
     out = tmp_path / "out.bvh"
     assert main(["clean", str(bad), "-o", str(out), "--method", "lerp"]) == 2
     err = capsys.readouterr().err

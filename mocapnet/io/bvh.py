@@ -205,7 +205,9 @@ def read_bvh(path: str | os.PathLike, cm_per_unit: float | None = None, unwrap: 
     return parse_bvh(_open_text(path), path, cm_per_unit, unwrap)
 
 
-def parse_bvh(text: str, path: str | os.PathLike = "<text>", cm_per_unit: float | None = None, unwrap: bool = True) -> Motion:
+def parse_bvh(
+    text: str, path: str | os.PathLike = "<text>", cm_per_unit: float | None = None, unwrap: bool = True
+) -> Motion:
     """Parse BVH ``text``; ``path`` is used for the clip name and in error messages (see ``read_bvh``)."""
     path = Path(path)
     lines = text.splitlines()
@@ -292,9 +294,13 @@ def format_bvh(motion: Motion, precision: int = 6) -> str:
         out.append(f"{tab}}}")
 
     emit(0, 0)
+    _joint_index = {f"{'ROOT' if sk.parents[j] < 0 else 'JOINT'} {name}": j for j, name in enumerate(sk.names)}
     out += ["MOTION", f"Frames: {motion.n_frames}", f"Frame Time: {1.0 / motion.fps:.8g}"]
+    # The file lists channels in hierarchy (depth-first) order, whatever order the skeleton keeps joints in.
+    order = [int(j) for line in out if (j := _joint_index.get(line.strip())) is not None]
+    columns = np.concatenate([sk.joint_channels(j) for j in order]) if order else np.arange(0)
     buf = io.StringIO()
-    np.savetxt(buf, motion.channels, fmt=f"%.{precision}f", delimiter=" ")
+    np.savetxt(buf, motion.channels[:, columns], fmt=f"%.{precision}f", delimiter=" ")
     return "\n".join(out) + "\n" + buf.getvalue()
 
 

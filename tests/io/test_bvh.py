@@ -134,8 +134,9 @@ def test_nothing_written_on_failure_and_no_overwrite(tmp_path, cmu_short):
     with pytest.raises(MocapFileError, match="same as the input"):
         write_bvh(src, cmu_short, inputs=(src,))
     assert src.read_bytes() == before
-    bad = cmu_short.with_channels(np.where(np.arange(cmu_short.channels.size).reshape(cmu_short.channels.shape) == 5,
-                                           np.nan, cmu_short.channels))
+    bad = cmu_short.with_channels(
+        np.where(np.arange(cmu_short.channels.size).reshape(cmu_short.channels.shape) == 5, np.nan, cmu_short.channels)
+    )
     with pytest.raises(MocapFileError, match="frame 1"):
         write_bvh(tmp_path / "out.bvh", bad)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["in.bvh"]
@@ -157,3 +158,32 @@ def test_every_shared_bvh_loads_and_round_trips(shared, tmp_path):
         back = parse_bvh(format_bvh(m), f, cm_per_unit=m.skeleton.cm_per_unit)
         assert np.abs(back.channels - m.channels).max() < 1e-4, f
         assert np.abs(back.skeleton.offsets - m.skeleton.offsets).max() < 1e-4, f
+
+
+def test_large_rig_with_mixed_channel_orders(tmp_path):
+    """A 100-joint rig (iClone-sized) with every Euler order and 3- or 6-channel joints round-trips."""
+    from mocapnet.motion import Motion, Skeleton
+
+    rng = np.random.default_rng(0)
+    orders = ["XYZ", "XZY", "YXZ", "YZX", "ZXY", "ZYX"]
+    n = 100
+    parents = tuple([-1] + [int(rng.integers(0, j)) for j in range(1, n)])
+    channels = tuple(
+        (("Xposition", "Yposition", "Zposition") if j % 7 == 0 else ()) + tuple(f"{a}rotation" for a in orders[j % 6])
+        for j in range(n)
+    )
+    sk = Skeleton(tuple(f"joint{j}" for j in range(n)), parents, rng.normal(size=(n, 3)), channels)
+    motion = Motion(sk, rng.uniform(-170, 170, (20, sk.n_channels)), 60.0, "rig")
+    write_bvh(tmp_path / "rig.bvh", motion)
+    back = read_bvh(tmp_path / "rig.bvh", unwrap=False)
+    # the file is in depth-first order: compare joint by joint
+    assert back.skeleton.n_joints == n and set(back.skeleton.names) == set(sk.names)
+    for j, name in enumerate(sk.names):
+        k = back.skeleton.names.index(name)
+        assert back.skeleton.channels[k] == sk.channels[j]
+        p = back.skeleton.parents[k]
+        assert (p < 0 and sk.parents[j] < 0) or back.skeleton.names[p] == sk.names[sk.parents[j]]
+        np.testing.assert_allclose(
+            back.channels[:, back.skeleton.joint_channels(k)], motion.channels[:, sk.joint_channels(j)], atol=1e-4
+        )
+        np.testing.assert_allclose(back.skeleton.offsets[k], sk.offsets[j], atol=1e-6)
