@@ -70,6 +70,19 @@ class Evaluation:
     repeats: int = 1
 
 
+def _row(method: str, corruption: str, file: str, repeat: int, frames: int, seconds: float, **scores: float) -> dict:
+    """One CSV row; metrics not given are NaN."""
+    row = {"method": method, "corruption": corruption, "file": file, "repeat": repeat}
+    row.update({k: float(scores.get(k, float("nan"))) for k in ROW_FIELDS[4:9]})
+    row.update(frames=frames, seconds=seconds)
+    return row
+
+
+def _point_labels(skeleton) -> list[str]:
+    """Labels of the joint and End Site points of ``joint_positions(..., end_sites=True)``."""
+    return list(skeleton.names) + [f"{skeleton.names[p]}_end{e}" for e, p in enumerate(skeleton.end_parents)]
+
+
 def is_c3d_data(data: str | Path) -> bool:
     p = Path(str(data))
     if p.is_file():
@@ -96,8 +109,7 @@ def _points_method_as_angles(method: Method):
                 pos_missing[:, j] |= pos_missing[:, p] | joint_missing[:, p]
         ends_missing = np.stack([pos_missing[:, p] | joint_missing[:, p] for p in sk.end_parents], axis=1)
         visible = ~np.concatenate([pos_missing, ends_missing], axis=1)
-        labels = list(sk.names) + [f"{sk.names[p]}_end{e}" for e, p in enumerate(sk.end_parents)]
-        markers = Markers(pos, visible, labels, noisy.fps, noisy.name)
+        markers = Markers(pos, visible, _point_labels(sk), noisy.fps, noisy.name)
         target = method.clean(markers)
         out = inverse_kinematics(base, target)
         result = noisy.channels.copy()
@@ -111,9 +123,7 @@ def _motion_train_as_markers(train: Sequence[Motion]) -> list[Markers]:
     out = []
     for m in train:
         pos = joint_positions(m, end_sites=True)
-        sk = m.skeleton
-        labels = list(sk.names) + [f"{sk.names[p]}_end{e}" for e, p in enumerate(sk.end_parents)]
-        out.append(Markers(pos, np.ones(pos.shape[:2], dtype=bool), labels, m.fps, m.name))
+        out.append(Markers(pos, np.ones(pos.shape[:2], dtype=bool), _point_labels(m.skeleton), m.fps, m.name))
     return out
 
 
@@ -158,19 +168,18 @@ def evaluate_angles(
                 out = clean(noisy, mask)
                 seconds = time.perf_counter() - start
                 rows.append(
-                    {
-                        "method": text,
-                        "corruption": corruption,
-                        "file": motion.name,
-                        "repeat": rep,
-                        "angle_err_deg": metrics.angle_err_deg(out, motion.channels, sk.scored_mask),
-                        "gap_err_deg": metrics.gap_err_deg(out, motion.channels, mask),
-                        "rot_err_deg": metrics.rot_err_deg(motion, out, truth_rot),
-                        "pos_err_cm": metrics.pos_err_cm(motion, out, truth_pos),
-                        "point_err_cm": float("nan"),
-                        "frames": motion.n_frames,
-                        "seconds": seconds,
-                    }
+                    _row(
+                        text,
+                        corruption,
+                        motion.name,
+                        rep,
+                        motion.n_frames,
+                        seconds,
+                        angle_err_deg=metrics.angle_err_deg(out, motion.channels, sk.scored_mask),
+                        gap_err_deg=metrics.gap_err_deg(out, motion.channels, mask),
+                        rot_err_deg=metrics.rot_err_deg(motion, out, truth_rot),
+                        pos_err_cm=metrics.pos_err_cm(motion, out, truth_pos),
+                    )
                 )
     return rows, skipped
 
@@ -221,21 +230,8 @@ def evaluate_points(
                 start = time.perf_counter()
                 out = clean(noisy)
                 seconds = time.perf_counter() - start
-                rows.append(
-                    {
-                        "method": text,
-                        "corruption": corruption,
-                        "file": truth.name,
-                        "repeat": rep,
-                        "angle_err_deg": float("nan"),
-                        "gap_err_deg": float("nan"),
-                        "rot_err_deg": float("nan"),
-                        "pos_err_cm": float("nan"),
-                        "point_err_cm": metrics.point_err_cm(out, truth.points, missing),
-                        "frames": truth.n_frames,
-                        "seconds": seconds,
-                    }
-                )
+                point_err = metrics.point_err_cm(out, truth.points, missing)
+                rows.append(_row(text, corruption, truth.name, rep, truth.n_frames, seconds, point_err_cm=point_err))
     return rows, skipped
 
 
