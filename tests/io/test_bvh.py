@@ -187,3 +187,13 @@ def test_large_rig_with_mixed_channel_orders(tmp_path):
             back.channels[:, back.skeleton.joint_channels(k)], motion.channels[:, sk.joint_channels(j)], atol=1e-4
         )
         np.testing.assert_allclose(back.skeleton.offsets[k], sk.offsets[j], atol=1e-6)
+
+
+def test_written_file_has_usual_permissions(tmp_path, cmu_short):
+    import os
+    import stat
+
+    write_bvh(tmp_path / "p.bvh", cmu_short)
+    umask = os.umask(0)
+    os.umask(umask)
+    assert stat.S_IMODE((tmp_path / "p.bvh").stat().st_mode) == 0o666 & ~umask
