@@ -1,0 +1,246 @@
+"""Tests of the data-driven gap filler (mocapnet.methods.knn) and the PCA baseline (mocapnet.methods.pca)."""
+
+from __future__ import annotations
+
+import os
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from mocapnet.corpus import PACKAGE_DATA
+from mocapnet.corrupt import corrupt_markers, motion_markers
+from mocapnet.io.bvh import read_bvh
+from mocapnet.io.c3d import read_c3d
+from mocapnet.methods import MethodContext, build_method
+from mocapnet.methods.knn import (
+    Anchors,
+    MotionDatabase,
+    body_frames,
+    denormalise,
+    derivatives,
+    detect_anchors,
+    downsample,
+    fill_gaps,
+    normalise,
+    upsample,
+)
+from mocapnet.methods.pca import pca_fill
+from mocapnet.motion import Markers
+
+SHARED = Path(os.environ.get("MOCAPNET_DATA", Path(__file__).parents[2].parent / "shared" / "data"))
+FPS = 60.0
+# Shoulder / hip pivots and the distance below them of each limb marker (cm, body frame x right, y fwd, z up).
+_LIMBS = {
+    "L": {"arm": ((-18.0, 0.0, 50.0), ("LUPA", "LELB", "LFRM", "LWRA", "LWRB", "LFIN"), 1.0),
+          "leg": ((-10.0, 0.0, 0.0), ("LTHI", "LKNE", "LSHN", "LANK", "LHEE", "LTOE"), -1.0)},
+    "R": {"arm": ((18.0, 0.0, 50.0), ("RUPA", "RELB", "RFRM", "RWRA", "RWRB", "RFIN"), -1.0),
+          "leg": ((10.0, 0.0, 0.0), ("RTHI", "RKNE", "RSHN", "RANK", "RHEE", "RTOE"), 1.0)},
+}
+_TRUNK = {"LASI": (-12, 8, 0), "RASI": (12, 8, 0), "LPSI": (-6, -9, 2), "RPSI": (6, -9, 2), "C7": (0, -5, 55),
+          "STRN": (0, 10, 35), "LFHD": (-6, 8, 72), "RFHD": (6, 8, 72), "LBHD": (-6, -6, 70), "RBHD": (6, -6, 70),
+          "LSHO": (-17, 0, 53), "RSHO": (17, 0, 53)}
+
+
+def synthetic_walk(
+    n_frames: int = 300, phase: float = 0.0, stride_hz: float = 1.0, swing: float = 0.5, name: str = "walk"
+) -> Markers:
+    """A Plug-in-Gait-labelled stick figure walking on a curve, limbs swinging ``±swing`` rad, ``[T, 34, 3]`` cm."""
+    t = np.arange(n_frames) / FPS
+    labels: list[str] = list(_TRUNK)
+    local = [np.broadcast_to(np.array(v, dtype=float), (n_frames, 3)) for v in _TRUNK.values()]
+    for sides in _LIMBS.values():
+        for pivot, names, sign in sides.values():
+            angle = swing * sign * np.sin(2 * np.pi * stride_hz * t + phase)
+            # A sideways cosine sway too, so that a pose fixes the phase (no pose recurs with another velocity).
+            sway = 4.0 * np.cos(2 * np.pi * stride_hz * t + phase)
+            for r, lab in zip(np.linspace(8.0, 45.0, len(names)), names):
+                offset = np.stack([sway * r / 45.0, r * np.sin(angle), -r * np.cos(angle)], axis=1)
+                local.append(np.array(pivot) + offset)
+                labels.append(lab)
+    pts = np.stack(local, axis=1)
+    heading = 0.4 * np.sin(0.3 * t + phase)
+    rot = np.zeros((n_frames, 3, 3))
+    rot[:, 0, 0], rot[:, 0, 1] = np.cos(heading), -np.sin(heading)
+    rot[:, 1, 0], rot[:, 1, 1] = np.sin(heading), np.cos(heading)
+    rot[:, 2, 2] = 1.0
+    root = np.stack([40.0 * t, 15.0 * np.sin(0.5 * t), 95.0 + 2.0 * np.sin(4 * np.pi * stride_hz * t)], axis=1)
+    world = np.einsum("tij,tmj->tmi", rot, pts) + root[:, None]
+    return Markers(world, np.ones(world.shape[:2], dtype=bool), labels, FPS, name)
+
+
+@pytest.fixture(scope="module")
+def walk() -> Markers:
+    return synthetic_walk()
+
+
+@pytest.fixture(scope="module")
+def database(walk: Markers) -> MotionDatabase:
+    """Contains the test motion (under another name) and two with other poses (smaller / larger swing)."""
+    copy = Markers(walk.points, walk.visible, walk.labels, FPS, "database copy")
+    others = [synthetic_walk(phase=1.0, stride_hz=1.3, swing=0.3, name="small"),
+              synthetic_walk(phase=2.0, swing=0.7, name="large")]
+    return MotionDatabase.from_markers([copy, *others])
+
+
+@pytest.mark.parametrize("corruption", ["segment-gap:left-arm:1", "segment-gap:legs:2", "marker-gap:1.5"])
+def test_exact_when_the_database_contains_the_motion(walk, database, corruption: str) -> None:
+    noisy = corrupt_markers(walk, corruption, np.random.default_rng(3))
+    out, report = fill_gaps(noisy, database, k=4)
+    miss = ~noisy.visible
+    assert report.gaps == 1 and not report.unfilled
+    assert np.linalg.norm(out - walk.points, axis=-1)[miss].max() < 1e-3
+
+
+def test_nearby_gaps_of_one_marker(walk, database) -> None:
+    """Several short gaps close together (another gap inside a gap's context window), as in real data."""
+    visible = walk.visible.copy()
+    lwra = walk.labels.index("LWRA")
+    for start in (100, 112, 125, 140):
+        visible[start : start + 6, lwra] = False
+    visible[150:154, walk.labels.index("RKNE")] = False
+    noisy = Markers(walk.points, visible, walk.labels, FPS, "walk")
+    out, report = fill_gaps(noisy, database)
+    assert report.gaps == 5 and np.isfinite(out).all()
+    assert np.linalg.norm(out - walk.points, axis=-1)[~visible].max() < 1e-3
+
+
+def test_visible_points_never_change(walk) -> None:
+    other = MotionDatabase.from_markers([synthetic_walk(phase=1.0, stride_hz=1.3, swing=0.3, name="small")])
+    noisy = corrupt_markers(walk, "segment-gap:arms:1.5", np.random.default_rng(0))
+    out, _ = fill_gaps(noisy, other)
+    assert np.array_equal(out[noisy.visible], noisy.points[noisy.visible])
+    assert np.isfinite(out).all()
+    assert not np.allclose(out[~noisy.visible], walk.points[~noisy.visible], atol=1e-3)  # a real estimate
+
+
+def test_body_frame_round_trip_and_heading(walk) -> None:
+    anchors = detect_anchors(walk.labels)
+    assert anchors.left == ("LASI", "LPSI") and anchors.right == ("RASI", "RPSI")
+    origin, rot = body_frames(walk.points, walk.visible, walk.labels, anchors, up=2)
+    local = normalise(walk.points, origin, rot)
+    assert np.allclose(denormalise(local, origin, rot), walk.points)
+    # The body shape is constant in the body frame; left hip on the left (x < 0), up is z.
+    assert not np.allclose(local, local[0], atol=1e-9)  # limbs swing
+    lasi = walk.labels.index("LASI")
+    assert np.allclose(local[:, lasi], local[0, lasi]) and local[0, lasi, 0] < 0
+    assert np.allclose(np.einsum("tij,tik->tjk", rot, rot), np.eye(3))
+
+
+def test_missing_pelvis_follows_the_shoulders(walk) -> None:
+    """With the pelvis markers gone for 1.5 s of a turning walk, the frames come from the shoulders."""
+    anchors = detect_anchors(walk.labels)
+    full = body_frames(walk.points, walk.visible, walk.labels, anchors, up=2)
+    visible = walk.visible.copy()
+    visible[100:190, [walk.labels.index(m) for m in ("LASI", "RASI", "LPSI", "RPSI")]] = False
+    gappy = body_frames(walk.points, visible, walk.labels, anchors, up=2)
+    assert np.allclose(gappy[0], full[0], atol=1e-9) and np.allclose(gappy[1], full[1], atol=1e-9)
+    no_backup = Anchors(anchors.origin, anchors.left, anchors.right)
+    interpolated = body_frames(walk.points, visible, walk.labels, no_backup, up=2)
+    assert np.abs(interpolated[0] - full[0]).max() > 1.0  # plain interpolation misses the curve
+
+
+def test_skeleton_anchors() -> None:
+    cmu = detect_anchors(["Hips", "LHipJoint", "LeftUpLeg", "LeftLeg", "RHipJoint", "RightUpLeg", "Spine"])
+    assert (cmu.origin, cmu.left, cmu.right) == (("HIPS", "LEFTUPLEG", "RIGHTUPLEG"), ("LEFTUPLEG",), ("RIGHTUPLEG",))
+    bandai = detect_anchors(["joint_Root", "Hips", "Spine", "UpperLeg_L", "LowerLeg_L", "UpperLeg_R"])
+    assert bandai.left == ("UPPERLEG_L",) and bandai.right == ("UPPERLEG_R",) and bandai.backup() is None
+    with_shoulders = detect_anchors(["Hips", "UpperLeg_L", "UpperLeg_R", "Shoulder_L", "Shoulder_R"])
+    assert (with_shoulders.backup_left, with_shoulders.backup_right) == (("SHOULDER_L",), ("SHOULDER_R",))
+    assert detect_anchors(["a", "b", "c"]).kind == "centroid"
+
+
+def test_multi_resolution_round_trip(database) -> None:
+    rng = np.random.default_rng(1)
+    for level in (1, 2, 3):
+        coarse = rng.normal(size=(12, 4, 3))
+        n = (len(coarse) - 1) * 2**level + 1
+        assert np.array_equal(downsample(upsample(coarse, n, level), level), coarse)
+        line = np.linspace(0, 10, n)[:, None, None] * np.array([1.0, -2.0, 0.5])
+        assert np.allclose(upsample(downsample(line, level), n, level), line)
+    quad = (np.arange(20.0) * 0.1) ** 2  # x = t², dt = 0.1 s: velocity 2t, acceleration 2
+    vel, acc = derivatives(quad, 0.1)
+    assert np.allclose(vel[1:-1], 2 * np.arange(20.0)[1:-1] * 0.1) and np.allclose(acc[1:-1], 2.0)
+    # Levels halve the rate; together they stay under twice the full-rate store.
+    lengths = [len(level.clip) for level in database.levels]
+    assert lengths == [sum(-(-300 // 2**i) for _ in range(3)) for i in range(len(lengths))]
+    assert database.nbytes < 2 * database.levels[0].nbytes
+
+
+def test_error_names_file_and_database_when_marker_sets_differ(walk) -> None:
+    renamed = Markers(walk.points, walk.visible, [f"M{i}" for i in range(walk.n_markers)], FPS, "other set")
+    db = MotionDatabase.from_markers([renamed], source="folder/of/other-set")
+    noisy = corrupt_markers(walk, "segment-gap:left-arm:1", np.random.default_rng(0))
+    with pytest.raises(ValueError, match=r"walk: database folder/of/other-set .* does not contain marker\(s\)"):
+        fill_gaps(noisy, db)
+
+
+def test_gaps_over_max_length_left_nan_or_interpolated_with_warning(walk, database) -> None:
+    noisy = corrupt_markers(walk, "segment-gap:left-arm:1", np.random.default_rng(0))
+    out, report = fill_gaps(noisy, database, max_gap_s=0.5)
+    assert np.isnan(out[~noisy.visible]).all()
+    assert {u[0] for u in report.unfilled} == {"LUPA", "LELB", "LFRM", "LWRA", "LWRB", "LFIN"}
+    other = synthetic_walk(phase=1.0, swing=0.3, name="other")
+    method = build_method("knn:max_gap_s=0.5", MethodContext(train=[other]))
+    with pytest.warns(UserWarning) as caught:
+        filled = method.clean(noisy)
+    messages = [str(w.message) for w in caught]
+    assert len(messages) == 6 and all("walk: knn left a gap unfilled" in m for m in messages)
+    assert any(re.search(r"marker LUPA frames \d+-\d+ filled by linear interpolation", m) for m in messages)
+    assert np.isfinite(filled).all()
+
+
+def test_registered_methods_build_and_run(walk) -> None:
+    noisy = corrupt_markers(walk, "segment-gap:right-arm:1", np.random.default_rng(2))
+    same_name = Markers(walk.points, walk.visible, walk.labels, FPS, "walk")
+    train = [same_name, synthetic_walk(phase=2.0, swing=0.7, name="x")]
+    knn = build_method("knn:k=4", MethodContext(train=train))
+    pca = build_method("pca")
+    assert knn.space == pca.space == "points" and knn.options == {"k": 4}
+    for method in (knn, pca):
+        out = method.clean(noisy)
+        assert out.shape == walk.points.shape and np.isfinite(out).all()
+        assert np.array_equal(out[noisy.visible], walk.points[noisy.visible])
+    # The clip named like the input is left out of the database: the fill is not a copy of the truth.
+    err = np.linalg.norm(knn.clean(noisy) - walk.points, axis=-1)[~noisy.visible].mean()
+    assert 1e-3 < err < 20.0
+
+
+def test_knn_on_joint_positions_of_a_motion() -> None:
+    """BVH corpora: the database may be given as motions (their joint positions are used)."""
+    motion = read_bvh(PACKAGE_DATA / "bvh" / "01_01.bvh.gz")
+    half = motion.n_frames // 2
+    train, test = motion.with_channels(motion.channels[:half]), motion.with_channels(motion.channels[half:])
+    truth = motion_markers(test)
+    arm = [i for i, n in enumerate(truth.labels) if n in ("LeftForeArm", "LeftHand")]
+    visible = truth.visible.copy()
+    visible[200:320, arm] = False
+    noisy = Markers(truth.points, visible, truth.labels, truth.fps, "second half")
+    out = build_method("knn", MethodContext(train=[train])).clean(noisy)
+    err = np.linalg.norm(out - truth.points, axis=-1)[~visible].mean()
+    assert np.isfinite(out).all() and err < 15.0
+
+
+def test_pca_fills_a_real_gap_better_than_nothing() -> None:
+    tennis = read_c3d(PACKAGE_DATA / "c3d" / "kinematics_tennis_serve.c3d")
+    for corruption, bound in (("marker-gap:1", 5.0), ("segment-gap:right-leg:2", None)):
+        noisy = corrupt_markers(tennis, corruption, np.random.default_rng(0))
+        miss = ~noisy.visible
+        out = pca_fill(noisy.points, noisy.visible)
+        err = np.linalg.norm(out - tennis.points, axis=-1)[miss].mean()
+        nothing = np.linalg.norm(np.nanmean(noisy.points, axis=0) - tennis.points, axis=-1)[miss].mean()
+        assert np.isfinite(out).all() and np.array_equal(out[~miss], tennis.points[~miss])
+        assert err < 0.7 * nothing and (bound is None or err < bound)
+
+
+def test_database_folder_option_leaves_the_file_out() -> None:
+    folder = SHARED / "c3d" / "cmu"
+    if not folder.is_dir():
+        pytest.skip(f"shared data not found at {SHARED}")
+    clip = read_c3d(folder / "85_02.c3d")
+    noisy = corrupt_markers(clip, "segment-gap:left-arm:1", np.random.default_rng(0))
+    out = build_method(f"knn:database={folder},k=4").clean(noisy)
+    err = np.linalg.norm(out - clip.points, axis=-1)[~noisy.visible].mean()
+    assert np.array_equal(out[noisy.visible], clip.points[noisy.visible])
+    assert 0.1 < err < 100.0  # the file itself (in the folder) was not used
