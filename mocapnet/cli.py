@@ -55,8 +55,10 @@ def _evaluate(args: argparse.Namespace) -> int:
     n_files = len({r["file"] for r in ev.rows})
     print(f"{ev.data}: {ev.corruption}, {n_files} files ({where}), {ev.repeats} repeats")
     print(table(ev))
-    for name, reason in ev.skipped:
-        print(f"skipped {name}: {reason}", file=sys.stderr)
+    for name, reason in ev.skipped[:5]:
+        print(f"skipped: {reason if reason.startswith(name) else f'{name}: {reason}'}", file=sys.stderr)
+    if len(ev.skipped) > 5:
+        print(f"skipped {len(ev.skipped) - 5} more clips for the same kind of reason", file=sys.stderr)
     if args.csv:
         write_csv(args.csv, ev.rows)
         print(f"wrote {len(ev.rows)} rows to {args.csv}")
