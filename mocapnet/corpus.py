@@ -26,6 +26,7 @@ from mocapnet.motion import Motion
 PACKAGE_DATA = Path(__file__).parent / "data"
 SPLITS_DIR = Path(__file__).parent / "splits"
 N_FOLDS = 5
+TIME_SPLIT = (0.7, 0.15)  # train and validation fractions of a single-clip corpus; the rest is test
 _CACHE_VERSION = 1
 
 CORPORA = {
@@ -133,6 +134,18 @@ def load_folds(corpus: str, names: list[str]) -> dict[str, int]:
     return make_folds(names)
 
 
+def time_segments(motion: Motion, fractions: tuple[float, float] = TIME_SPLIT) -> tuple[Motion, Motion, Motion]:
+    """Cut one clip in time into (train, validation, test) of ``fractions[0]``, ``fractions[1]`` and the
+    remaining fraction of its frames; names get ``#train`` / ``#val`` / ``#test``."""
+    n = motion.n_frames
+    a = int(round(fractions[0] * n))
+    b = int(round((fractions[0] + fractions[1]) * n))
+    parts = ((0, a, "train"), (a, b, "val"), (b, n, "test"))
+    return tuple(  # type: ignore[return-value]
+        Motion(motion.skeleton, motion.channels[s:e], motion.fps, f"{motion.name}#{tag}") for s, e, tag in parts
+    )
+
+
 @dataclass
 class Corpus:
     """Clean motions of one skeleton topology, with their folds."""
@@ -143,12 +156,21 @@ class Corpus:
     folds: dict[str, int]
     skipped: list[tuple[str, str]] = field(default_factory=list)
 
-    def split(self, fold: int, holdout_style: str | None = None) -> tuple[list[Motion], list[Motion], list[Motion]]:
+    def split(
+        self, fold: int, holdout_style: str | None = None, time_split: tuple[float, float] = TIME_SPLIT
+    ) -> tuple[list[Motion], list[Motion], list[Motion]]:
         """``(train, validation, test)`` for ``fold``: test = fold k, validation = fold k+1 mod 5, train =
         the other three. ``holdout_style`` (e.g. ``"elderly"``) removes every clip of that style from train
-        and validation, for the unseen-style check (score it with ``style_clips``)."""
+        and validation, for the unseen-style check (score it with ``style_clips``).
+
+        A corpus of a single clip (``cmu120``, ``sample``) is split in time instead, whatever the fold: by
+        default the first 70 % of its frames train, the next 15 % validate, the last 15 % test (``time_split``
+        gives the first two fractions; ``#train``/``#val``/``#test`` are appended to the name)."""
         if not 0 <= fold < N_FOLDS:
             raise ValueError(f"fold must be in 0..{N_FOLDS - 1}, got {fold}")
+        if len(self.motions) == 1:
+            train, val, test = time_segments(self.motions[0], time_split)
+            return [train], [val], [test]
         if holdout_style is not None and not self.style_clips(holdout_style):
             styles = sorted({style_label(m.name) for m in self.motions})
             raise ValueError(f"{self.name}: no clip of style {holdout_style!r}; styles: {', '.join(styles)}")

@@ -71,8 +71,12 @@ QUICK_FILES = ("c3d/hdm05/HDM_bd_01-02_01_120.c3d", "c3d/kineticstoolkit/kinemat
 STREAMING = ("hold", "extrapolate-linear", "extrapolate-circular", "extrapolate", "extrapolate+cm")
 OFFLINE = ("lerp", "gapfill-spline", "gapfill-rbt-segment", "gapfill-rbt-rigid3")
 METHODS = STREAMING + OFFLINE
-LATENCY_MODES = (("hold", "hold", False), ("extrapolate-linear", "linear", False), ("extrapolate", "blend", False),
-                 ("extrapolate+cm", "blend", True))
+LATENCY_MODES = (
+    ("hold", "hold", False),
+    ("extrapolate-linear", "linear", False),
+    ("extrapolate", "blend", False),
+    ("extrapolate+cm", "blend", True),
+)
 # Plug-in-Gait model outputs stored as points (bone origins/axes such as PELO, LFEA) and centre-of-mass points.
 _MODEL_POINT = re.compile(r"^(PEL|HED|TRX|[LR](FE|TI|FO|TO|CL|HU|RA|HN))[OALP]$|^Centre", re.IGNORECASE)
 
@@ -105,13 +109,26 @@ def load_clips(root: Path, files: tuple[str, ...]) -> list[Clip]:
         corpus = str(Path(rel).parent)
         if rel.startswith("bvh/"):
             motion = read_bvh(path)
-            clips.append(Clip(corpus, path.name, motion_markers(motion),
-                              lambda seg, sk=motion.skeleton: skeleton_segment(sk, seg),
-                              [int(j) for j in motion.skeleton.scored_joints]))
+            clips.append(
+                Clip(
+                    corpus,
+                    path.name,
+                    motion_markers(motion),
+                    lambda seg, sk=motion.skeleton: skeleton_segment(sk, seg),
+                    [int(j) for j in motion.skeleton.scored_joints],
+                )
+            )
         else:
             markers = physical_markers(read_c3d(path))
-            clips.append(Clip(corpus, path.name, markers, lambda seg, lab=markers.labels: marker_segment(lab, seg),
-                              list(np.flatnonzero(markers.visible.all(axis=0)))))
+            clips.append(
+                Clip(
+                    corpus,
+                    path.name,
+                    markers,
+                    lambda seg, lab=markers.labels: marker_segment(lab, seg),
+                    list(np.flatnonzero(markers.visible.all(axis=0))),
+                )
+            )
     return clips
 
 
@@ -122,8 +139,7 @@ def corrupt(clip: Clip, corruption: str, repeat: int) -> Markers:
     m = clip.markers
     if clip.corpus.startswith("c3d"):
         return corrupt_markers(m, corruption, rng)
-    mask = point_gap_mask(corruption, m.n_frames, m.fps, rng, clip.segment_tracks, m.n_markers, clip.candidates,
-                          m.name)
+    mask = point_gap_mask(corruption, m.n_frames, m.fps, rng, clip.segment_tracks, m.n_markers, clip.candidates, m.name)
     return Markers(m.points, m.visible & ~mask, m.labels, m.fps, m.name)
 
 
@@ -178,8 +194,10 @@ def gapfill_fills(clip: Clip, noisy: Markers) -> dict[str, np.ndarray]:
         for i in missing:
             gap = ~noisy.visible[:, i]
             through_gap = [j for j in range(noisy.n_markers) if noisy.visible[gap, j].all()]
-            for name, cluster in (("gapfill-rbt-segment", rbt_cluster(noisy, i, limb_of(clip, i))),
-                                  ("gapfill-rbt-rigid3", rbt_cluster(noisy, i, through_gap))):
+            for name, cluster in (
+                ("gapfill-rbt-segment", rbt_cluster(noisy, i, limb_of(clip, i))),
+                ("gapfill-rbt-rigid3", rbt_cluster(noisy, i, through_gap)),
+            ):
                 if len(cluster) == 3:
                     target = noisy.points[:, i].copy()
                     gf.fill_marker_gap_rbt(target, noisy.points[:, cluster].transpose(1, 0, 2).copy())
@@ -251,10 +269,17 @@ def synthetic_check(fps: float = 120.0, seconds: float = 2.0) -> dict:
     e2 /= np.linalg.norm(e2)
     circle = np.array([3.0, -2.0, 50.0]) + 15.0 * (np.cos(2 * t)[:, None] * e1 + np.sin(2 * t)[:, None] * e2)
     line = np.array([1.0, 2.0, 3.0]) + t[:, None] * np.array([30.0, -10.0, 5.0])
-    result = {"fps": fps, "seconds_predicted": seconds, "seen_frames": n_seen,
-              "circle": "radius 15 cm, 2 rad/s, tilted plane", "line": "velocity (30, -10, 5) cm/s"}
-    for name, traj, modes in (("circle", circle, ("circular", "blend", "linear")),
-                              ("line", line, ("linear", "blend", "circular"))):
+    result = {
+        "fps": fps,
+        "seconds_predicted": seconds,
+        "seen_frames": n_seen,
+        "circle": "radius 15 cm, 2 rad/s, tilted plane",
+        "line": "velocity (30, -10, 5) cm/s",
+    }
+    for name, traj, modes in (
+        ("circle", circle, ("circular", "blend", "linear")),
+        ("line", line, ("linear", "blend", "circular")),
+    ):
         for mode in modes:
             ex = Extrapolator(["p"], fps, mode)
             out = np.array([ex.push(p[None], np.array([k < n_seen]))[0] for k, p in enumerate(traj)])
@@ -268,11 +293,16 @@ def latency(root: Path, n_markers: int = 40) -> dict:
     markers = physical_markers(read_c3d(root / rel)).select(list(range(n_markers)))
     rng = np.random.default_rng(seed_for("latency", Path(rel).name, 0, "gaps"))
     visible = ~gap_mask(markers.n_frames, n_markers, markers.fps, rng)
-    result: dict = {"file": rel, "markers": n_markers, "frames": markers.n_frames,
-                    "occlusion": "gap_mask: exponential gaps, mean 0.5 s, ~10% of each marker's frames",
-                    "missing_fraction": float((~visible).mean()),
-                    "mean_missing_per_frame": float((~visible).sum(axis=1).mean()),
-                    "frames_with_missing_fraction": float((~visible).any(axis=1).mean()), "methods": {}}
+    result: dict = {
+        "file": rel,
+        "markers": n_markers,
+        "frames": markers.n_frames,
+        "occlusion": "gap_mask: exponential gaps, mean 0.5 s, ~10% of each marker's frames",
+        "missing_fraction": float((~visible).mean()),
+        "mean_missing_per_frame": float((~visible).sum(axis=1).mean()),
+        "frames_with_missing_fraction": float((~visible).any(axis=1).mean()),
+        "methods": {},
+    }
     result["load_average"] = ", ".join(f"{x:.2f}" for x in os.getloadavg())
     # Methods take turns frame by frame, so load from other processes hits them alike. Wall time counts the
     # time the process waits for a core on a busy machine; thread CPU time does not.
@@ -287,9 +317,13 @@ def latency(root: Path, n_markers: int = 40) -> dict:
             wall[k, t] = (time.perf_counter_ns() - start) / 1e3
     for k, (name, _, _) in enumerate(LATENCY_MODES):
         result["methods"][name] = {
-            "median_us": float(np.median(wall[k])), "p99_us": float(np.percentile(wall[k], 99)),
-            "max_us": float(wall[k].max()), "cpu_median_us": float(np.median(cpu[k])),
-            "cpu_p99_us": float(np.percentile(cpu[k], 99)), "cpu_max_us": float(cpu[k].max())}
+            "median_us": float(np.median(wall[k])),
+            "p99_us": float(np.percentile(wall[k], 99)),
+            "max_us": float(wall[k].max()),
+            "cpu_median_us": float(np.median(cpu[k])),
+            "cpu_p99_us": float(np.percentile(cpu[k], 99)),
+            "cpu_max_us": float(cpu[k].max()),
+        }
     base = result["methods"]["hold"]
     for entry in result["methods"].values():
         for key in ("median_us", "p99_us", "cpu_median_us", "cpu_p99_us"):
@@ -299,8 +333,9 @@ def latency(root: Path, n_markers: int = 40) -> dict:
 
 def git_commit() -> str:
     try:
-        return subprocess.run(["git", "rev-parse", "HEAD"], cwd=REPO, capture_output=True, text=True,
-                              check=True).stdout.strip()
+        return subprocess.run(
+            ["git", "rev-parse", "HEAD"], cwd=REPO, capture_output=True, text=True, check=True
+        ).stdout.strip()
     except (OSError, subprocess.CalledProcessError):
         return "unknown"
 
@@ -309,9 +344,18 @@ def summarise(acc: dict, first: str = "source") -> list[dict]:
     """Rows of mean error and fill fraction from ``{(source or file, kind, gap s, method): [sum, filled, n]}``."""
     rows = []
     for (group, kind, seconds, method), (total, filled, missing) in sorted(acc.items()):
-        rows.append({first: group, "corruption": kind, "gap_s": seconds, "method": method,
-                     "mean_err_cm": total / filled if filled else None, "filled_samples": filled,
-                     "missing_samples": missing, "filled_fraction": filled / missing if missing else None})
+        rows.append(
+            {
+                first: group,
+                "corruption": kind,
+                "gap_s": seconds,
+                "method": method,
+                "mean_err_cm": total / filled if filled else None,
+                "filled_samples": filled,
+                "missing_samples": missing,
+                "filled_fraction": filled / missing if missing else None,
+            }
+        )
     return rows
 
 
@@ -335,12 +379,21 @@ def markdown(report: dict) -> str:
         "files, repeats and segments); in brackets the ratio to `lerp`",
         "- files (complete, no gaps of their own):",
     ]
-    lines += [f"  - `{c['path']}`: {c['markers']} points, {c['frames']} frames at {c['fps']:g} Hz" for c in
-              report["clips"]]
+    lines += [
+        f"  - `{c['path']}`: {c['markers']} points, {c['frames']} frames at {c['fps']:g} Hz" for c in report["clips"]
+    ]
     if report["skipped"]:
-        lines.append("- skipped (clip too short for the gap with 1 s visible on each side): " +
-                     ", ".join(sorted({f"{s['file']} {s['corruption'].split(':')[0]} {s['corruption'].split(':')[-1]} s"
-                                       for s in report["skipped"]})))
+        lines.append(
+            "- skipped (clip too short for the gap with 1 s visible on each side): "
+            + ", ".join(
+                sorted(
+                    {
+                        f"{s['file']} {s['corruption'].split(':')[0]} {s['corruption'].split(':')[-1]} s"
+                        for s in report["skipped"]
+                    }
+                )
+            )
+        )
     lines += [
         "",
         "Causal, real-time methods see only the past; `lerp` and the `gapfill` functions are offline references",
@@ -352,8 +405,13 @@ def markdown(report: dict) -> str:
             sel = [r for r in rows if r["source"] == source and r["corruption"] == kind]
             if not sel:
                 continue
-            lines += ["", f"## {source.upper()} — `{kind}` (mean error, cm)", "",
-                      "| gap s | " + " | ".join(METHODS) + " |", "|---" * (len(METHODS) + 1) + "|"]
+            lines += [
+                "",
+                f"## {source.upper()} — `{kind}` (mean error, cm)",
+                "",
+                "| gap s | " + " | ".join(METHODS) + " |",
+                "|---" * (len(METHODS) + 1) + "|",
+            ]
             for s in GAP_SECONDS:
                 cells = {r["method"]: r for r in sel if r["gap_s"] == s}
                 if not cells:
@@ -365,40 +423,59 @@ def markdown(report: dict) -> str:
                     ratio = f" ({err / ref:.2f})" if err is not None and ref else ""
                     out.append(_fmt(err) + ratio)
                 lines.append(f"| {s:g} | " + " | ".join(out) + " |")
-    lines += ["", "## gapfill: fraction of missing samples filled", "",
-              "| source | corruption | gap s | " + " | ".join(OFFLINE[1:]) + " |",
-              "|---" * (2 + len(OFFLINE)) + "|"]
+    lines += [
+        "",
+        "## gapfill: fraction of missing samples filled",
+        "",
+        "| source | corruption | gap s | " + " | ".join(OFFLINE[1:]) + " |",
+        "|---" * (2 + len(OFFLINE)) + "|",
+    ]
     for source in ("c3d", "bvh"):
         for kind in ("marker-gap", "segment-gap"):
             for s in GAP_SECONDS:
                 key = (source, kind, s)
                 cells = {r["method"]: r for r in rows if (r["source"], r["corruption"], r["gap_s"]) == key}
                 if cells:
-                    lines.append(f"| {source} | {kind} | {s:g} | " +
-                                 " | ".join(_fmt(cells[m]["filled_fraction"], 3) for m in OFFLINE[1:]) + " |")
+                    lines.append(
+                        f"| {source} | {kind} | {s:g} | "
+                        + " | ".join(_fmt(cells[m]["filled_fraction"], 3) for m in OFFLINE[1:])
+                        + " |"
+                    )
     lines += ["", f"gapfill {report['gapfill']['version']}: {report['gapfill']['note']}", ""]
     syn = report["synthetic"]
-    lines += ["## Synthetic exactness check", "",
-              f"A point seen for {syn['seen_frames']} frames at {syn['fps']:g} Hz, then predicted from its own past "
-              f"for {syn['seconds_predicted']:g} s; largest error (cm). Circle: {syn['circle']}; line: {syn['line']}.",
-              "", "| trajectory | mode | max error cm |", "|---|---|---|"]
+    lines += [
+        "## Synthetic exactness check",
+        "",
+        f"A point seen for {syn['seen_frames']} frames at {syn['fps']:g} Hz, then predicted from its own past "
+        f"for {syn['seconds_predicted']:g} s; largest error (cm). Circle: {syn['circle']}; line: {syn['line']}.",
+        "",
+        "| trajectory | mode | max error cm |",
+        "|---|---|---|",
+    ]
     for key, value in syn.items():
         if key.endswith("_max_err_cm"):
             shape, mode = key.split("_")[:2]
             lines.append(f"| {shape} | {mode} | {value:.3g} |")
     lat = report["latency"]
-    lines += ["", "## Per-frame latency of `Extrapolator.push`", "",
-              f"{lat['markers']} markers of `{lat['file']}`, {lat['frames']} frames, {lat['occlusion']} "
-              f"(measured {100 * lat['missing_fraction']:.1f}% missing, {lat['mean_missing_per_frame']:.1f} markers "
-              f"missing per frame on average). The methods take turns frame by frame in one process (single "
-              f"thread); load average (1, 5, 15 min) just before timing: {lat['load_average']}.", "",
-              "| method | clock | median µs | p99 µs | max µs | median / hold | p99 / hold |",
-              "|---|---|---|---|---|---|---|"]
+    lines += [
+        "",
+        "## Per-frame latency of `Extrapolator.push`",
+        "",
+        f"{lat['markers']} markers of `{lat['file']}`, {lat['frames']} frames, {lat['occlusion']} "
+        f"(measured {100 * lat['missing_fraction']:.1f}% missing, {lat['mean_missing_per_frame']:.1f} markers "
+        f"missing per frame on average). The methods take turns frame by frame in one process (single "
+        f"thread); load average (1, 5, 15 min) just before timing: {lat['load_average']}.",
+        "",
+        "| method | clock | median µs | p99 µs | max µs | median / hold | p99 / hold |",
+        "|---|---|---|---|---|---|---|",
+    ]
     for name, e in lat["methods"].items():
         for clock, pre in (("wall", ""), ("thread CPU", "cpu_")):
-            lines.append(f"| {name} | {clock} | {e[pre + 'median_us']:.1f} | {e[pre + 'p99_us']:.1f} | "
-                         f"{e[pre + 'max_us']:.0f} | {e[pre + 'median_ratio_to_hold']:.1f} | "
-                         f"{e[pre + 'p99_ratio_to_hold']:.1f} |")
+            lines.append(
+                f"| {name} | {clock} | {e[pre + 'median_us']:.1f} | {e[pre + 'p99_us']:.1f} | "
+                f"{e[pre + 'max_us']:.0f} | {e[pre + 'median_ratio_to_hold']:.1f} | "
+                f"{e[pre + 'p99_ratio_to_hold']:.1f} |"
+            )
     lines += ["", "Per-file errors are in `extrapolate.json` (`per_file`).", ""]
     return "\n".join(lines)
 
@@ -416,9 +493,12 @@ def plot(report: dict, path: Path) -> None:
         for col, kind in enumerate(("marker-gap", "segment-gap")):
             ax = axes[row, col]
             for method in METHODS:
-                pts = [(r["gap_s"], r["mean_err_cm"]) for r in report["summary"]
-                       if (r["source"], r["corruption"], r["method"]) == (source, kind, method)
-                       and r["mean_err_cm"] is not None]
+                pts = [
+                    (r["gap_s"], r["mean_err_cm"])
+                    for r in report["summary"]
+                    if (r["source"], r["corruption"], r["method"]) == (source, kind, method)
+                    and r["mean_err_cm"] is not None
+                ]
                 if pts:
                     xs, ys = zip(*sorted(pts))
                     ax.plot(xs, ys, "--" if method in OFFLINE else "-", marker="o", color=colours[method], label=method)
@@ -439,13 +519,20 @@ def plot(report: dict, path: Path) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
-                                     formatter_class=argparse.RawDescriptionHelpFormatter,
-                                     epilog="example: nice -n 10 .venv/bin/python scripts/bench_extrapolate.py --quick")
-    parser.add_argument("--data-root", type=Path, default=default_data_root(),
-                        help="shared data folder (default: $MOCAPNET_DATA or ../shared/data from the repo root)")
-    parser.add_argument("--repeats", type=int, default=None, help="random onsets per file and corruption "
-                        "(default 20, 2 with --quick)")
+    parser = argparse.ArgumentParser(
+        description=__doc__.split("\n\n")[0],
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog="example: nice -n 10 .venv/bin/python scripts/bench_extrapolate.py --quick",
+    )
+    parser.add_argument(
+        "--data-root",
+        type=Path,
+        default=default_data_root(),
+        help="shared data folder (default: $MOCAPNET_DATA or ../shared/data from the repo root)",
+    )
+    parser.add_argument(
+        "--repeats", type=int, default=None, help="random onsets per file and corruption (default 20, 2 with --quick)"
+    )
     parser.add_argument("--quick", action="store_true", help="two C3D files, 2 repeats: a small run")
     parser.add_argument("--out", type=Path, default=REPO / "benchmarks" / "results", help="output folder")
     args = parser.parse_args(argv)
@@ -473,32 +560,47 @@ def main(argv: list[str] | None = None) -> int:
 
     shipped = gapfill_spline_error_without_alias()
     report = {
-        "command": shlex.join([os.path.relpath(sys.executable, REPO), os.path.relpath(sys.argv[0], REPO),
-                               *(sys.argv[1:] if argv is None else argv)]),
+        "command": shlex.join(
+            [
+                os.path.relpath(sys.executable, REPO),
+                os.path.relpath(sys.argv[0], REPO),
+                *(sys.argv[1:] if argv is None else argv),
+            ]
+        ),
         "git_commit": git_commit(),
         "machine": f"{platform.processor() or platform.machine()}, {os.cpu_count()} CPUs shared with other jobs, "
-                   f"process niceness {os.nice(0)}, Python {platform.python_version()}, NumPy {np.__version__}",
+        f"process niceness {os.nice(0)}, Python {platform.python_version()}, NumPy {np.__version__}",
         "repeats": repeats,
         "gap_seconds": list(GAP_SECONDS),
         "segments": list(SEGMENTS),
         "methods": list(METHODS),
-        "clips": [{"path": str(Path(c.corpus) / c.file), "markers": c.markers.n_markers,
-                   "frames": c.markers.n_frames, "fps": c.markers.fps} for c in clips],
+        "clips": [
+            {
+                "path": str(Path(c.corpus) / c.file),
+                "markers": c.markers.n_markers,
+                "frames": c.markers.n_frames,
+                "fps": c.markers.fps,
+            }
+            for c in clips
+        ],
         "skipped": skipped,
         "summary": summarise(acc),
         "per_file": summarise(per_file, "file"),
         "gapfill": {
             "version": gapfill.__version__,
             "without_np_int_alias": shipped,
-            "note": ("fill_marker_gap_interp (spline) and fill_marker_gap_pattern call np.int, removed in NumPy "
-                     "1.24: as shipped they fail under this NumPy (" + shipped +
-                     "); this benchmark runs them with a temporary alias np.int = int. fill_marker_gap_rbt needs "
-                     "the three cluster markers visible through the whole gap and the target visible on both "
-                     "sides, so it fills nothing when the whole limb is missing (segment-gap with a same-segment "
-                     "cluster). gapfill-rbt-segment: the three markers of the target's limb (segments.py) whose "
-                     "distance to it varies least (every marker when the target is on no limb); "
-                     "gapfill-rbt-rigid3: the three least varying among the markers visible through the gap. "
-                     "gapfill has no causal (real-time) mode: every function interpolates across the gap."),
+            "note": (
+                "fill_marker_gap_interp (spline) and fill_marker_gap_pattern call np.int, removed in NumPy "
+                "1.24: as shipped they fail under this NumPy ("
+                + shipped
+                + "); this benchmark runs them with a temporary alias np.int = int. fill_marker_gap_rbt needs "
+                "the three cluster markers visible through the whole gap and the target visible on both "
+                "sides, so it fills nothing when the whole limb is missing (segment-gap with a same-segment "
+                "cluster). gapfill-rbt-segment: the three markers of the target's limb (segments.py) whose "
+                "distance to it varies least (every marker when the target is on no limb); "
+                "gapfill-rbt-rigid3: the three least varying among the markers visible through the gap. "
+                "gapfill has no causal (real-time) mode: every function interpolates across the gap."
+            ),
         },
         "synthetic": synthetic_check(),
         "latency": lat,

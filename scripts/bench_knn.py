@@ -63,8 +63,14 @@ from mocapnet.motion import Markers, Motion  # noqa: E402
 from mocapnet.segments import SEGMENTS, skeleton_segment  # noqa: E402
 
 GAP_SECONDS = (1.0, 2.0, 4.0)
-CMU41 = ("c3d/hdm05/HDM_bd_01-02_01_120.c3d", "c3d/hdm05/HDM_bd_05-01_01_120.c3d", "c3d/hdm05/HDM_mm_01-02_03_120.c3d",
-         "c3d/cmu/02_01.c3d", "c3d/cmu/85_02.c3d", "c3d/cmu/85_12.c3d")
+CMU41 = (
+    "c3d/hdm05/HDM_bd_01-02_01_120.c3d",
+    "c3d/hdm05/HDM_bd_05-01_01_120.c3d",
+    "c3d/hdm05/HDM_mm_01-02_03_120.c3d",
+    "c3d/cmu/02_01.c3d",
+    "c3d/cmu/85_02.c3d",
+    "c3d/cmu/85_12.c3d",
+)
 CMU41_DB_ONLY = ("c3d/cmu/01_01.c3d",)
 PIG = ("c3d/kineticstoolkit/kinematics_tennis_serve.c3d", "c3d/pycgm/Movement_trial.c3d")
 REAL_NAN = ("c3d/kineticstoolkit/kinematics_tennis_serve_nan.c3d", "c3d/kineticstoolkit/kinematics_tennis_serve.c3d")
@@ -75,10 +81,12 @@ BVH_METHODS = ("knn", "knn+offset", "pca", "lerp", "spline")
 ANGLE_METHODS = ("knn+IK", "knn+offset+IK", "lerp-positions+IK", "truth-positions+IK", "lerp-angles", "spline-angles")
 TIMING_GAPS = (0.5, 1.0, 2.0, 4.0, 8.0, 16.0)
 TIMING_FILE = "c3d/hdm05/HDM_bd_05-01_01_120.c3d"
-PAPER_NOTE = ("kNN completion paper (HDM05 at 30 Hz, database = hours of HDM05): left arm missing, actor not in "
-              "the database 2.5 cm (walk) to 5 cm (cartwheel); Table 2 (actor's other takes in the database) "
-              "0.59-10.2 cm over left/right arm, both arms, left/right leg, both legs; time about 10x the gap "
-              "length, linear in it.")
+PAPER_NOTE = (
+    "kNN completion paper (HDM05 at 30 Hz, database = hours of HDM05): left arm missing, actor not in "
+    "the database 2.5 cm (walk) to 5 cm (cartwheel); Table 2 (actor's other takes in the database) "
+    "0.59-10.2 cm over left/right arm, both arms, left/right leg, both legs; time about 10x the gap "
+    "length, linear in it."
+)
 
 
 def default_data_root() -> Path:
@@ -220,9 +228,14 @@ def bench_c3d(root: Path, repeats: int, quick: bool, progress: tqdm) -> tuple[li
     for group, (tests, members) in groups.items():
         clips = load_c3d_group(root, members)
         db = MotionDatabase.from_markers(clips, source=group)
-        info[group] = {"database": list(members), "markers": len(db.labels), "test_files": list(tests),
-                       "database_frames": int(len(db.levels[0].clip)), "levels": len(db.levels),
-                       "gapfill_spline_minus_spline_max_cm": 0.0}
+        info[group] = {
+            "database": list(members),
+            "markers": len(db.labels),
+            "test_files": list(tests),
+            "database_frames": int(len(db.levels[0].clip)),
+            "levels": len(db.levels),
+            "gapfill_spline_minus_spline_max_cm": 0.0,
+        }
         for path in tests:
             clip = clips[members.index(path)]
             for corr in corruptions()[: 2 if quick else None]:
@@ -237,7 +250,8 @@ def bench_c3d(root: Path, repeats: int, quick: bool, progress: tqdm) -> tuple[li
                     fills = point_fills(noisy, db, clip.name, POINT_METHODS)
                     diff = np.abs(fills["gapfill-spline"][0] - fills["spline"][0])[~noisy.visible]
                     info[group]["gapfill_spline_minus_spline_max_cm"] = max(
-                        info[group]["gapfill_spline_minus_spline_max_cm"], float(np.nanmax(diff)))
+                        info[group]["gapfill_spline_minus_spline_max_cm"], float(np.nanmax(diff))
+                    )
                     base = {"group": group, "file": path, "corruption": corr, "repeat": rep}
                     rows += rows_for(base, fills, clip.points, ~noisy.visible)
     return rows, skipped, info
@@ -254,10 +268,15 @@ def bench_real_nan(root: Path) -> dict:
     fills = point_fills(gappy, db, twin.name, POINT_METHODS)
     rows = rows_for({"file": REAL_NAN[0]}, fills, twin.points, ~vis)
     miss = ~vis
-    return {"file": REAL_NAN[0], "truth": REAL_NAN[1], "database": [f for f in PIG if f != REAL_NAN[1]],
-            "missing_samples": int(miss.sum()),
-            "gappy_markers": [gappy.labels[i] for i in np.flatnonzero(miss.any(axis=0))],
-            "max_abs_diff_visible_cm": float(same), "rows": rows}
+    return {
+        "file": REAL_NAN[0],
+        "truth": REAL_NAN[1],
+        "database": [f for f in PIG if f != REAL_NAN[1]],
+        "missing_samples": int(miss.sum()),
+        "gappy_markers": [gappy.labels[i] for i in np.flatnonzero(miss.any(axis=0))],
+        "max_abs_diff_visible_cm": float(same),
+        "rows": rows,
+    }
 
 
 @dataclass
@@ -314,16 +333,24 @@ def bench_bvh_case(corpus: str, clip: BvhClip, db: MotionDatabase, corr: str, re
     return rows
 
 
-def bench_bvh(root: Path, repeats: int, n_bandai: int, n_bandai_test: int, quick: bool,
-              progress: tqdm) -> tuple[list[dict], dict]:
+def bench_bvh(
+    root: Path, repeats: int, n_bandai: int, n_bandai_test: int, quick: bool, progress: tqdm
+) -> tuple[list[dict], dict]:
     rows: list[dict] = []
     motion = read_bvh(root / CMU120)
     half = motion.n_frames // 2
-    halves = [bvh_clip(Motion(motion.skeleton, motion.channels[part], motion.fps, f"01_01 {name}"))
-              for part, name in ((slice(0, half), "first half"), (slice(half, None), "second half"))]
-    info: dict = {"cmu120": {"file": CMU120, "frames": motion.n_frames,
-                             "split": f"frames [0, {half}) and [{half}, {motion.n_frames}); each half is filled "
-                                      "with the other half as the database"}}
+    halves = [
+        bvh_clip(Motion(motion.skeleton, motion.channels[part], motion.fps, f"01_01 {name}"))
+        for part, name in ((slice(0, half), "first half"), (slice(half, None), "second half"))
+    ]
+    info: dict = {
+        "cmu120": {
+            "file": CMU120,
+            "frames": motion.n_frames,
+            "split": f"frames [0, {half}) and [{half}, {motion.n_frames}); each half is filled "
+            "with the other half as the database",
+        }
+    }
     for i, clip in enumerate(halves):
         db = MotionDatabase.from_markers([halves[1 - i].markers], source="cmu120 other half")
         for corr in corruptions()[: 2 if quick else None]:
@@ -336,10 +363,15 @@ def bench_bvh(root: Path, repeats: int, n_bandai: int, n_bandai_test: int, quick
     db = MotionDatabase.from_markers([c.markers for c in clips], source=f"bandai2 subset of {n_bandai}")
     long_enough = [c for c in clips if c.markers.n_frames >= 3 * c.markers.fps]
     tests = [long_enough[i] for i in np.linspace(0, len(long_enough) - 1, n_bandai_test).round().astype(int)]
-    info["bandai2"] = {"folder": BANDAI2, "subset": n_bandai, "subset_rule": "evenly spaced in sorted file order",
-                       "database_frames": int(len(db.levels[0].clip)), "test_files": [c.markers.name for c in tests],
-                       "test_rule": f"{n_bandai_test} evenly spaced among the subset's files of at least 3 s; "
-                                    "database = the other files of the subset"}
+    info["bandai2"] = {
+        "folder": BANDAI2,
+        "subset": n_bandai,
+        "subset_rule": "evenly spaced in sorted file order",
+        "database_frames": int(len(db.levels[0].clip)),
+        "test_files": [c.markers.name for c in tests],
+        "test_rule": f"{n_bandai_test} evenly spaced among the subset's files of at least 3 s; "
+        "database = the other files of the subset",
+    }
     for clip in tests:
         for corr in corruptions()[: 2 if quick else None]:
             progress.update()
@@ -369,13 +401,26 @@ def corpus_timing(root: Path) -> dict:
         t0 = time.process_time()
         tree.query(queries, k=8)
         t_query = (time.process_time() - t0) / 500
-        levels.append({"level": lev, "rows": int(len(rows)), "dims": int(data.shape[1]), "tree_build_s": t_build,
-                       "query_ms_per_frame": 1e3 * t_query})
-    return {"files": list(CMU41 + CMU41_DB_ONLY), "frames": int(sum(c.n_frames for c in clips)),
-            "markers": len(db.labels), "database_build_s": build, "database_mb": db.nbytes / 1e6,
-            "full_rate_mb": db.levels[0].nbytes / 1e6, "levels": levels,
-            "features": "the 35 markers other than the left arm's (a left-arm gap), k = 8; queries = 500 database "
-                        "poses + N(0, 2 cm) noise per coordinate"}
+        levels.append(
+            {
+                "level": lev,
+                "rows": int(len(rows)),
+                "dims": int(data.shape[1]),
+                "tree_build_s": t_build,
+                "query_ms_per_frame": 1e3 * t_query,
+            }
+        )
+    return {
+        "files": list(CMU41 + CMU41_DB_ONLY),
+        "frames": int(sum(c.n_frames for c in clips)),
+        "markers": len(db.labels),
+        "database_build_s": build,
+        "database_mb": db.nbytes / 1e6,
+        "full_rate_mb": db.levels[0].nbytes / 1e6,
+        "levels": levels,
+        "features": "the 35 markers other than the left arm's (a left-arm gap), k = 8; queries = 500 database "
+        "poses + N(0, 2 cm) noise per coordinate",
+    }
 
 
 def time_vs_gap(root: Path, repeats: int) -> dict:
@@ -390,16 +435,30 @@ def time_vs_gap(root: Path, repeats: int) -> dict:
             noisy = corrupt_markers(clip, corr, np.random.default_rng(seed_for("timing", clip.name, rep, corr)))
             t0, w0 = time.process_time(), time.perf_counter()
             _, report = fill_gaps(noisy, db, exclude=clip.name)
-            points.append({"gap_s": s, "repeat": rep, "cpu_s": time.process_time() - t0,
-                           "wall_s": time.perf_counter() - w0, "tree_build_s": report.build_s,
-                           "query_s": report.query_s, "solve_s": report.solve_s, "queries": report.queries,
-                           "iterations": report.iterations})
+            points.append(
+                {
+                    "gap_s": s,
+                    "repeat": rep,
+                    "cpu_s": time.process_time() - t0,
+                    "wall_s": time.perf_counter() - w0,
+                    "tree_build_s": report.build_s,
+                    "query_s": report.query_s,
+                    "solve_s": report.solve_s,
+                    "queries": report.queries,
+                    "iterations": report.iterations,
+                }
+            )
     x = np.array([p["gap_s"] for p in points])
     y = np.array([p["cpu_s"] for p in points])
     slope, intercept = np.polyfit(x, y, 1)
     r2 = 1 - ((y - (slope * x + intercept)) ** 2).sum() / ((y - y.mean()) ** 2).sum()
-    return {"file": TIMING_FILE, "segment": "left-arm", "database": "the other 6 files of the 41-marker set",
-            "points": points, "fit": {"slope_s_per_s": float(slope), "intercept_s": float(intercept), "r2": float(r2)}}
+    return {
+        "file": TIMING_FILE,
+        "segment": "left-arm",
+        "database": "the other 6 files of the 41-marker set",
+        "points": points,
+        "fit": {"slope_s_per_s": float(slope), "intercept_s": float(intercept), "r2": float(r2)},
+    }
 
 
 def plot_time(timing: dict, path: Path) -> None:
@@ -414,8 +473,12 @@ def plot_time(timing: dict, path: Path) -> None:
     ax.plot([p["gap_s"] for p in pts], [p["tree_build_s"] + p["query_s"] for p in pts], "x", label="of which kd-trees")
     fit = timing["fit"]
     xs = np.array([0, max(TIMING_GAPS)])
-    ax.plot(xs, fit["slope_s_per_s"] * xs + fit["intercept_s"], "-",
-            label=f"fit {fit['slope_s_per_s']:.3f} s/s + {fit['intercept_s']:.3f} s (R² {fit['r2']:.3f})")
+    ax.plot(
+        xs,
+        fit["slope_s_per_s"] * xs + fit["intercept_s"],
+        "-",
+        label=f"fit {fit['slope_s_per_s']:.3f} s/s + {fit['intercept_s']:.3f} s (R² {fit['r2']:.3f})",
+    )
     ax.set_xlabel("gap length (s), left arm missing, 120 Hz")
     ax.set_ylabel("CPU seconds")
     ax.set_title(f"knn fill time vs gap length ({Path(timing['file']).name})")
@@ -432,8 +495,10 @@ def summarise(rows: list[dict], keys: tuple[str, ...]) -> dict[tuple, dict]:
     channels (deg), fill fraction, mean CPU seconds and number of cases."""
     acc: dict[tuple, dict] = {}
     for r in rows:
-        e = acc.setdefault(tuple(r[key] for key in keys) + (r["method"],),
-                           {"sum": 0.0, "filled": 0, "missing": 0, "cpu": 0.0, "cases": 0, "rms": "rms_deg" in r})
+        e = acc.setdefault(
+            tuple(r[key] for key in keys) + (r["method"],),
+            {"sum": 0.0, "filled": 0, "missing": 0, "cpu": 0.0, "cases": 0, "rms": "rms_deg" in r},
+        )
         if e["rms"]:
             e["sum"] += r["rms_deg"] ** 2 * r["channels_samples"]
             e["filled"] += r["channels_samples"]
@@ -447,9 +512,12 @@ def summarise(rows: list[dict], keys: tuple[str, ...]) -> dict[tuple, dict]:
     out = {}
     for k, e in acc.items():
         mean = e["sum"] / e["filled"] if e["filled"] else None
-        out[k] = {"value": np.sqrt(mean) if e["rms"] and mean is not None else mean,
-                  "fill": e["filled"] / e["missing"] if e["missing"] else None,
-                  "cpu_s": e["cpu"] / e["cases"], "cases": e["cases"]}
+        out[k] = {
+            "value": np.sqrt(mean) if e["rms"] and mean is not None else mean,
+            "fill": e["filled"] / e["missing"] if e["missing"] else None,
+            "cpu_s": e["cpu"] / e["cases"],
+            "cases": e["cases"],
+        }
     return out
 
 
@@ -457,8 +525,10 @@ def table(rows: list[dict], keys: tuple[str, ...], methods: tuple[str, ...], ref
     """Markdown table: one line per key combination, one column per method (ratio to ``ref`` in brackets)."""
     stats = summarise(rows, keys)
     combos = sorted({k[:-1] for k in stats}, key=lambda c: tuple(str(x) for x in c))
-    lines = ["| " + " | ".join(keys) + " | cases | " + " | ".join(f"{m} {unit}" for m in methods) + " |",
-             "|---" * (len(keys) + 1 + len(methods)) + "|"]
+    lines = [
+        "| " + " | ".join(keys) + " | cases | " + " | ".join(f"{m} {unit}" for m in methods) + " |",
+        "|---" * (len(keys) + 1 + len(methods)) + "|",
+    ]
     for combo in combos:
         base = stats.get(combo + (ref,), {}).get("value")
         cells = []
@@ -478,8 +548,9 @@ def table(rows: list[dict], keys: tuple[str, ...], methods: tuple[str, ...], ref
 
 def with_parts(rows: list[dict]) -> list[dict]:
     """Add ``segment`` and ``gap_s`` columns parsed from the corruption name."""
-    return [{**r, "segment": r["corruption"].split(":")[1], "gap_s": float(r["corruption"].split(":")[2])}
-            for r in rows]
+    return [
+        {**r, "segment": r["corruption"].split(":")[1], "gap_s": float(r["corruption"].split(":")[2])} for r in rows
+    ]
 
 
 def markdown(report: dict) -> str:
@@ -520,49 +591,80 @@ def markdown(report: dict) -> str:
     lines += table(cmu, ("segment", "gap_s"), POINT_METHODS, "lerp", "cm") + [""]
     lines += table(cmu, ("file",), POINT_METHODS, "lerp", "cm") + [""]
     spline_diff = max(g["gapfill_spline_minus_spline_max_cm"] for g in report["c3d"]["info"].values())
-    lines += [f"`gapfill-spline` and `spline` agree to {spline_diff:.1g} cm on every C3D case (both are "
-              "not-a-knot cubic interpolating splines; gapfill's window of visible frames is wide enough).", ""]
+    lines += [
+        f"`gapfill-spline` and `spline` agree to {spline_diff:.1g} cm on every C3D case (both are "
+        "not-a-knot cubic interpolating splines; gapfill's window of visible frames is wide enough).",
+        "",
+    ]
     lines += ["## C3D, Plug-in-Gait (tennis serve; database = pyCGM Movement_trial, 39 common markers)", ""]
     lines += table([r for r in c3d if r["group"] == "pig"], ("gap_s",), POINT_METHODS, "lerp", "cm") + [""]
     if report["c3d"]["skipped"]:
         short = sorted({(s["file"], s["corruption"].split(":")[-1]) for s in report["c3d"]["skipped"]})
-        lines += ["Skipped (clip too short for the gap with 1 s visible on each side): " +
-                  ", ".join(f"`{f}` {s} s" for f, s in short), ""]
+        lines += [
+            "Skipped (clip too short for the gap with 1 s visible on each side): "
+            + ", ".join(f"`{f}` {s} s" for f, s in short),
+            "",
+        ]
     real = report["real_nan"]
-    lines += [f"## Real gaps: `{real['file']}` scored against `{real['truth']}`", "",
-              f"{real['missing_samples']} missing samples in {', '.join(real['gappy_markers'])}; visible samples of "
-              f"the two files differ by at most {real['max_abs_diff_visible_cm']:.3g} cm. Database: "
-              f"{', '.join(real['database'])}.", ""]
+    lines += [
+        f"## Real gaps: `{real['file']}` scored against `{real['truth']}`",
+        "",
+        f"{real['missing_samples']} missing samples in {', '.join(real['gappy_markers'])}; visible samples of "
+        f"the two files differ by at most {real['max_abs_diff_visible_cm']:.3g} cm. Database: "
+        f"{', '.join(real['database'])}.",
+        "",
+    ]
     lines += table(real["rows"], ("file",), POINT_METHODS, "lerp", "cm") + [""]
     band = report["bvh"]["info"]["bandai2"]
-    lines += ["## BVH joint positions (joints + End Sites)", "",
-              f"cmu120: {report['bvh']['info']['cmu120']['split']}. bandai2: {band['test_rule']} ({band['subset']} "
-              f"files, {band['subset_rule']}; {band['database_frames']} database frames). Segment points: "
-              "`skeleton_segment` joints and their End Sites.", ""]
+    lines += [
+        "## BVH joint positions (joints + End Sites)",
+        "",
+        f"cmu120: {report['bvh']['info']['cmu120']['split']}. bandai2: {band['test_rule']} ({band['subset']} "
+        f"files, {band['subset_rule']}; {band['database_frames']} database frames). Segment points: "
+        "`skeleton_segment` joints and their End Sites.",
+        "",
+    ]
     lines += table(pos, ("corpus", "gap_s"), BVH_METHODS, "lerp", "cm") + [""]
     lines += table(pos, ("corpus", "segment"), BVH_METHODS, "lerp", "cm") + [""]
-    lines += ["## BVH angle space (fill positions, then `inverse_kinematics`; IK twist reference = linearly "
-              "interpolated angles)", "",
-              "`truth-positions+IK` runs the same IK on the true positions: the error the position-to-angle step "
-              "adds by itself (twist about each bone and the End-Site-only joints are not determined by "
-              "positions).", ""]
+    lines += [
+        "## BVH angle space (fill positions, then `inverse_kinematics`; IK twist reference = linearly "
+        "interpolated angles)",
+        "",
+        "`truth-positions+IK` runs the same IK on the true positions: the error the position-to-angle step "
+        "adds by itself (twist about each bone and the End-Site-only joints are not determined by "
+        "positions).",
+        "",
+    ]
     lines += table(ang, ("corpus", "gap_s"), ANGLE_METHODS, "lerp-angles", "deg") + [""]
     lines += table(ang, ("corpus", "segment"), ANGLE_METHODS, "lerp-angles", "deg") + [""]
-    lines += ["## Database and kd-tree times, whole 41-marker corpus", "",
-              f"{len(ct['files'])} files, {ct['frames']} frames at 120 Hz, {ct['markers']} markers (union of labels). "
-              f"Database build (normalisation + {len(ct['levels'])} resolutions): {ct['database_build_s']:.2f} s CPU; "
-              f"memory {ct['database_mb']:.1f} MB, full rate alone {ct['full_rate_mb']:.1f} MB "
-              f"(ratio {ct['database_mb'] / ct['full_rate_mb']:.2f}). Features: {ct['features']}.", "",
-              "| level | rows | dims | tree build s | query ms / frame |", "|---|---|---|---|---|"]
-    lines += [f"| {lv['level']} | {lv['rows']} | {lv['dims']} | {lv['tree_build_s']:.3f} | "
-              f"{lv['query_ms_per_frame']:.2f} |" for lv in ct["levels"]]
+    lines += [
+        "## Database and kd-tree times, whole 41-marker corpus",
+        "",
+        f"{len(ct['files'])} files, {ct['frames']} frames at 120 Hz, {ct['markers']} markers (union of labels). "
+        f"Database build (normalisation + {len(ct['levels'])} resolutions): {ct['database_build_s']:.2f} s CPU; "
+        f"memory {ct['database_mb']:.1f} MB, full rate alone {ct['full_rate_mb']:.1f} MB "
+        f"(ratio {ct['database_mb'] / ct['full_rate_mb']:.2f}). Features: {ct['features']}.",
+        "",
+        "| level | rows | dims | tree build s | query ms / frame |",
+        "|---|---|---|---|---|",
+    ]
+    lines += [
+        f"| {lv['level']} | {lv['rows']} | {lv['dims']} | {lv['tree_build_s']:.3f} | {lv['query_ms_per_frame']:.2f} |"
+        for lv in ct["levels"]
+    ]
     fit = tg["fit"]
-    lines += ["", "## Fill time against gap length", "",
-              f"`{tg['file']}`, left arm missing, database: {tg['database']}. CPU seconds of `fill_gaps` (one "
-              f"thread): {fit['slope_s_per_s']:.3f} s per second of gap + {fit['intercept_s']:.3f} s "
-              f"(least squares, R² {fit['r2']:.3f}); the paper reports about 10 s per second of gap. Plot: "
-              "`knn_time_vs_gap.png`.", "", "| gap s | CPU s (mean) | kd-tree build s | query s | solve s |",
-              "|---|---|---|---|---|"]
+    lines += [
+        "",
+        "## Fill time against gap length",
+        "",
+        f"`{tg['file']}`, left arm missing, database: {tg['database']}. CPU seconds of `fill_gaps` (one "
+        f"thread): {fit['slope_s_per_s']:.3f} s per second of gap + {fit['intercept_s']:.3f} s "
+        f"(least squares, R² {fit['r2']:.3f}); the paper reports about 10 s per second of gap. Plot: "
+        "`knn_time_vs_gap.png`.",
+        "",
+        "| gap s | CPU s (mean) | kd-tree build s | query s | solve s |",
+        "|---|---|---|---|---|",
+    ]
     for s in TIMING_GAPS:
         p = [x for x in tg["points"] if x["gap_s"] == s]
         means = [np.mean([x[key] for x in p]) for key in ("cpu_s", "tree_build_s", "query_s", "solve_s")]
@@ -583,11 +685,17 @@ def rounded(value):
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
-                                     formatter_class=argparse.RawDescriptionHelpFormatter,
-                                     epilog="example: nice -n 10 .venv/bin/python scripts/bench_knn.py --quick")
-    parser.add_argument("--data-root", type=Path, default=default_data_root(),
-                        help="shared data folder (default: $MOCAPNET_DATA or ../shared/data from the repo root)")
+    parser = argparse.ArgumentParser(
+        description=__doc__.split("\n\n")[0],
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog="example: nice -n 10 .venv/bin/python scripts/bench_knn.py --quick",
+    )
+    parser.add_argument(
+        "--data-root",
+        type=Path,
+        default=default_data_root(),
+        help="shared data folder (default: $MOCAPNET_DATA or ../shared/data from the repo root)",
+    )
     parser.add_argument("--quick", action="store_true", help="one file per group, two corruptions, one repeat")
     parser.add_argument("--repeats", type=int, default=None, help="C3D repeats (default 5, 1 with --quick)")
     parser.add_argument("--bvh-repeats", type=int, default=None, help="cmu120 repeats (default 3, 1 with --quick)")
@@ -615,20 +723,29 @@ def main(argv: list[str] | None = None) -> int:
     import gapfill
 
     report = {
-        "command": shlex.join([os.path.relpath(sys.executable, REPO), os.path.relpath(sys.argv[0], REPO),
-                               *(sys.argv[1:] if argv is None else argv)]),
+        "command": shlex.join(
+            [
+                os.path.relpath(sys.executable, REPO),
+                os.path.relpath(sys.argv[0], REPO),
+                *(sys.argv[1:] if argv is None else argv),
+            ]
+        ),
         "git_commit": git_commit(),
         "machine": f"{platform.processor() or platform.machine()}, {os.cpu_count()} CPUs shared with other jobs, "
-                   f"niceness {os.nice(0)}, Python {platform.python_version()}, NumPy {np.__version__}, "
-                   f"OMP_NUM_THREADS={os.environ.get('OMP_NUM_THREADS', 'unset')}",
+        f"niceness {os.nice(0)}, Python {platform.python_version()}, NumPy {np.__version__}, "
+        f"OMP_NUM_THREADS={os.environ.get('OMP_NUM_THREADS', 'unset')}",
         "repeats": {"c3d": repeats, "cmu120": bvh_repeats},
         "gap_seconds": list(GAP_SECONDS),
         "segments": list(SEGMENTS),
-        "gapfill": {"version": gapfill.__version__, "as_shipped": gapfill_as_shipped(),
-                    "note": "its spline fill calls np.int (removed in NumPy 1.24) and fails as shipped ("
-                            + gapfill_as_shipped() + "); run here with a temporary alias np.int = int. Rigid-body "
-                            "cluster: the 3 markers nearest the target (mean distance) among those visible "
-                            "through its whole gap."},
+        "gapfill": {
+            "version": gapfill.__version__,
+            "as_shipped": gapfill_as_shipped(),
+            "note": "its spline fill calls np.int (removed in NumPy 1.24) and fails as shipped ("
+            + gapfill_as_shipped()
+            + "); run here with a temporary alias np.int = int. Rigid-body "
+            "cluster: the 3 markers nearest the target (mean distance) among those visible "
+            "through its whole gap.",
+        },
         "c3d": {"rows": c3d_rows, "skipped": skipped, "info": c3d_info},
         "real_nan": real,
         "bvh": {"rows": bvh_rows, "info": bvh_info},

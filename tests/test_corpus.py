@@ -29,8 +29,9 @@ def test_committed_split_covers_bandai2(shared):
 def test_sample_corpus_and_split():
     corpus = load_corpus("sample", progress=False, use_cache=False)
     assert corpus.name == "sample" and len(corpus.motions) == 1
-    train, val, test = corpus.split(0)
-    assert len(test) == 1 and not train and not val
+    train, val, test = corpus.split(0)  # one clip: split in time 70/15/15
+    assert [m.name for m in train + val + test] == ["01_01#train", "01_01#val", "01_01#test"]
+    assert [m.n_frames for m in train + val + test] == [1926, 413, 413]
     with pytest.raises(ValueError, match="fold"):
         corpus.split(5)
 

@@ -489,9 +489,7 @@ def _on_subset(energy: _Energy, X: np.ndarray, idx: tuple[np.ndarray, np.ndarray
     return fun
 
 
-def _minimise(
-    energy: _Energy, X: np.ndarray, schedule: float, threshold: float, inner: int
-) -> tuple[np.ndarray, int]:
+def _minimise(energy: _Energy, X: np.ndarray, schedule: float, threshold: float, inner: int) -> tuple[np.ndarray, int]:
     """Scheduled L-BFGS on the variables of ``X`` until an iteration gains less than ``threshold``."""
     var_frames = np.flatnonzero(energy.var.any(axis=1))
     n_sched = max(1, int(np.ceil(schedule * len(var_frames))))
@@ -505,8 +503,9 @@ def _minimise(
         for offset in range(-_SCHEDULE_REACH, _SCHEDULE_REACH + 1):
             chosen[np.clip(top + offset, 0, len(X) - 1)] = True
         idx = np.nonzero(energy.var & chosen[:, None])
-        res = minimize(_on_subset(energy, X, idx), X[idx].ravel(), jac=True, method="L-BFGS-B",
-                       options={"maxiter": inner})
+        res = minimize(
+            _on_subset(energy, X, idx), X[idx].ravel(), jac=True, method="L-BFGS-B", options={"maxiter": inner}
+        )
         X[idx] = res.x.reshape(-1, 3)
         gain = value - float(res.fun)
         value = float(res.fun)
@@ -602,8 +601,9 @@ def fill_gaps(
     origin, rot = body_frames(markers.points, markers.visible, markers.labels, database.anchors, up, name)
     local = normalise(markers.points, origin, rot)
     usable = _reliable_mask(markers, reliable) & (cols >= 0)
-    settings = _Settings(k, min(levels or auto_levels(markers.fps), len(database.levels)), schedule, threshold,
-                         inner, offset)
+    settings = _Settings(
+        k, min(levels or auto_levels(markers.fps), len(database.levels)), schedule, threshold, inner, offset
+    )
     excluded = markers.name if exclude is None else exclude
     keep_clip = np.array([c != excluded for c in database.clip_names])
     for a, b in _runs(todo.any(axis=1)):
@@ -653,8 +653,13 @@ class _Gap:
             X[var] = (targets[0] if solution is None else _resample(*solution, frames))[var]
             t0 = time.process_time()
             energy = _Energy(X, var, *targets)
-            X, its = _minimise(energy, np.where(energy.defined[..., None], X, 0.0), settings.schedule,
-                               settings.threshold, settings.inner)
+            X, its = _minimise(
+                energy,
+                np.where(energy.defined[..., None], X, 0.0),
+                settings.schedule,
+                settings.threshold,
+                settings.inner,
+            )
             X[~energy.defined] = np.nan  # samples of other gaps: unknown here, never used as values
             report.solve_s += time.process_time() - t0
             report.iterations += its
@@ -704,7 +709,7 @@ class _Gap:
             full[query] = mean[: len(query)]
             out.append(full)
         if settings.offset:
-            shift, slope = self._offsets(ends, means[0][len(query):], frames)
+            shift, slope = self._offsets(ends, means[0][len(query) :], frames)
             out[0] += shift * var[..., None]
             out[1] += slope * 2**lev * var[..., None]
         return out[0], out[1], out[2]
@@ -733,8 +738,12 @@ def _resample(frames_c: np.ndarray, values: np.ndarray, frames: np.ndarray) -> n
     return out
 
 
-@register("knn", "points", help="kNN poses from a clean database + energy minimisation (long/segment gaps); "
-          "options k, levels, reliable (all|paper|A+B), database=<folder>, max_gap_s, schedule, offset, up")
+@register(
+    "knn",
+    "points",
+    help="kNN poses from a clean database + energy minimisation (long/segment gaps); "
+    "options k, levels, reliable (all|paper|A+B), database=<folder>, max_gap_s, schedule, offset, up",
+)
 def _knn(
     context: MethodContext,
     k: int = 8,
@@ -759,9 +768,17 @@ def _knn(
         raise ValueError("knn needs a database: give database=<folder of C3D files> or training clips")
 
     def clean(noisy: Markers) -> np.ndarray:
-        filled, _ = fill_gaps(noisy, db, k=k, reliable=reliable, levels=levels, max_gap_s=max_gap_s,
-                                   schedule=schedule, threshold=threshold, offset=offset)
+        filled, _ = fill_gaps(
+            noisy,
+            db,
+            k=k,
+            reliable=reliable,
+            levels=levels,
+            max_gap_s=max_gap_s,
+            schedule=schedule,
+            threshold=threshold,
+            offset=offset,
+        )
         return fill_remaining_linear(noisy, filled, "knn left a gap unfilled (too long or no visible reliable marker)")
 
     return clean
-

@@ -125,7 +125,7 @@ def pca_fill(
             far = d[other] > distal_threshold * np.nanmean(d)
             if far or (~visible[missing_i, other]).any():
                 data[:, other] = 0.0
-        weights = np.exp(-np.nan_to_num(d, nan=np.inf) ** 2 / (2.0 * weight_scale_cm**2))
+        weights = np.exp(-(np.nan_to_num(d, nan=np.inf) ** 2) / (2.0 * weight_scale_cm**2))
         weights[i] = missing_weight
         rebuilt = _reconstruct(data, int(i), weights, missing_i, min_cum_sv)
         if rebuilt is not None:

@@ -40,8 +40,9 @@ def _stream_one(traj: np.ndarray, mode: str, visible_frames: int) -> np.ndarray:
     return np.array([ex.push(p[None], np.array([k < visible_frames]))[0] for k, p in enumerate(traj)])
 
 
-@pytest.mark.parametrize(("shape", "mode"), [("circle", "circular"), ("circle", "blend"), ("line", "linear"),
-                                             ("line", "blend")])
+@pytest.mark.parametrize(
+    ("shape", "mode"), [("circle", "circular"), ("circle", "blend"), ("line", "linear"), ("line", "blend")]
+)
 def test_exact_circle_and_line_for_two_seconds(shape: str, mode: str) -> None:
     seen = int(FPS)
     traj = (_circle if shape == "circle" else _line)(seen + int(2 * FPS))
@@ -52,7 +53,7 @@ def test_exact_circle_and_line_for_two_seconds(shape: str, mode: str) -> None:
 def test_linear_cannot_follow_circle() -> None:
     """Sanity check of the circle test itself: a straight-line guess leaves the circle."""
     traj = _circle(int(3 * FPS))
-    assert np.abs(_stream_one(traj, "linear", int(FPS))[int(FPS):] - traj[int(FPS):]).max() > 10
+    assert np.abs(_stream_one(traj, "linear", int(FPS))[int(FPS) :] - traj[int(FPS) :]).max() > 10
 
 
 @pytest.mark.parametrize("mode", ["linear", "circular", "blend"])
@@ -76,8 +77,9 @@ def _random_walk_markers(n_frames: int = 300, n_markers: int = 6, seed: int = 0)
     return Markers(pts, vis, [f"m{i}" for i in range(n_markers)], FPS, "walk")
 
 
-@pytest.mark.parametrize(("mode", "cm"), [("hold", False), ("linear", False), ("circular", False),
-                                          ("blend", False), ("blend", True)])
+@pytest.mark.parametrize(
+    ("mode", "cm"), [("hold", False), ("linear", False), ("circular", False), ("blend", False), ("blend", True)]
+)
 def test_visible_untouched_and_streaming_equals_whole_array(mode: str, cm: bool) -> None:
     markers = _random_walk_markers()
     whole = extrapolate(markers, mode, cm)
@@ -150,8 +152,14 @@ def test_registered_methods_run_on_real_c3d() -> None:
     noisy = corrupt_markers(clean, corr, np.random.default_rng(seed_for("test", TENNIS_FILE.name, 0, corr)))
     miss = ~noisy.visible
     errors = {}
-    for text in ("hold", "extrapolate-linear", "extrapolate-circular", "extrapolate",
-                 "extrapolate+cm", "extrapolate+cm:backlog=30,threshold_cm=10"):
+    for text in (
+        "hold",
+        "extrapolate-linear",
+        "extrapolate-circular",
+        "extrapolate",
+        "extrapolate+cm",
+        "extrapolate+cm:backlog=30,threshold_cm=10",
+    ):
         method = build_method(text)
         assert method.space == "points"
         out = method.clean(noisy)

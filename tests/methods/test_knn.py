@@ -33,14 +33,29 @@ SHARED = Path(os.environ.get("MOCAPNET_DATA", Path(__file__).parents[2].parent /
 FPS = 60.0
 # Shoulder / hip pivots and the distance below them of each limb marker (cm, body frame x right, y fwd, z up).
 _LIMBS = {
-    "L": {"arm": ((-18.0, 0.0, 50.0), ("LUPA", "LELB", "LFRM", "LWRA", "LWRB", "LFIN"), 1.0),
-          "leg": ((-10.0, 0.0, 0.0), ("LTHI", "LKNE", "LSHN", "LANK", "LHEE", "LTOE"), -1.0)},
-    "R": {"arm": ((18.0, 0.0, 50.0), ("RUPA", "RELB", "RFRM", "RWRA", "RWRB", "RFIN"), -1.0),
-          "leg": ((10.0, 0.0, 0.0), ("RTHI", "RKNE", "RSHN", "RANK", "RHEE", "RTOE"), 1.0)},
+    "L": {
+        "arm": ((-18.0, 0.0, 50.0), ("LUPA", "LELB", "LFRM", "LWRA", "LWRB", "LFIN"), 1.0),
+        "leg": ((-10.0, 0.0, 0.0), ("LTHI", "LKNE", "LSHN", "LANK", "LHEE", "LTOE"), -1.0),
+    },
+    "R": {
+        "arm": ((18.0, 0.0, 50.0), ("RUPA", "RELB", "RFRM", "RWRA", "RWRB", "RFIN"), -1.0),
+        "leg": ((10.0, 0.0, 0.0), ("RTHI", "RKNE", "RSHN", "RANK", "RHEE", "RTOE"), 1.0),
+    },
 }
-_TRUNK = {"LASI": (-12, 8, 0), "RASI": (12, 8, 0), "LPSI": (-6, -9, 2), "RPSI": (6, -9, 2), "C7": (0, -5, 55),
-          "STRN": (0, 10, 35), "LFHD": (-6, 8, 72), "RFHD": (6, 8, 72), "LBHD": (-6, -6, 70), "RBHD": (6, -6, 70),
-          "LSHO": (-17, 0, 53), "RSHO": (17, 0, 53)}
+_TRUNK = {
+    "LASI": (-12, 8, 0),
+    "RASI": (12, 8, 0),
+    "LPSI": (-6, -9, 2),
+    "RPSI": (6, -9, 2),
+    "C7": (0, -5, 55),
+    "STRN": (0, 10, 35),
+    "LFHD": (-6, 8, 72),
+    "RFHD": (6, 8, 72),
+    "LBHD": (-6, -6, 70),
+    "RBHD": (6, -6, 70),
+    "LSHO": (-17, 0, 53),
+    "RSHO": (17, 0, 53),
+}
 
 
 def synthetic_walk(
@@ -79,8 +94,10 @@ def walk() -> Markers:
 def database(walk: Markers) -> MotionDatabase:
     """Contains the test motion (under another name) and two with other poses (smaller / larger swing)."""
     copy = Markers(walk.points, walk.visible, walk.labels, FPS, "database copy")
-    others = [synthetic_walk(phase=1.0, stride_hz=1.3, swing=0.3, name="small"),
-              synthetic_walk(phase=2.0, swing=0.7, name="large")]
+    others = [
+        synthetic_walk(phase=1.0, stride_hz=1.3, swing=0.3, name="small"),
+        synthetic_walk(phase=2.0, swing=0.7, name="large"),
+    ]
     return MotionDatabase.from_markers([copy, *others])
 
 

@@ -1,0 +1,113 @@
+"""The learned cleaners as angle-space methods: ``ebf``, ``ebd``, ``ebd+ebf``, and the ablations ``bf``, ``nn``.
+
+    --method ebf                       the checkpoint shipped for the clip's skeleton (mocapnet/checkpoints)
+    --method ebf=run/best.ckpt         a trained checkpoint
+    --method ebd+ebf=ebd.ckpt,ebf.ckpt gap filling by EBD, then denoising by EBF
+    --method ebf:mode=windowed         streaming-equivalent windowed mode (default: sequence)
+    --method ebf:mode=windowed,checkpoints=run/best.ckpt   both
+
+Gaps are filled by linear interpolation before any network (EBD then replaces the interpolated samples).
+Only the scored channels change. torch is imported when a method is built, never by ``import mocapnet``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+import numpy as np
+
+from mocapnet.methods.registry import MethodContext, register
+from mocapnet.motion import Motion
+
+_CLASS = {"ebf": "EBF", "bf": "EBF", "ebd": "EBD", "nn": "WindowMLP"}
+_HELP = "{what}; checkpoint: NAME=PATH, default: the shipped one for the skeleton; option mode=sequence|windowed"
+
+
+def _resolver(method: str, path: str | None) -> Callable[[Motion], object]:
+    """A function giving the loaded model for a motion: from ``path`` (loaded now, so a bad path fails at
+    build time) or the shipped checkpoint of ``method`` for the motion's skeleton (loaded once per skeleton)."""
+    from mocapnet.nn.checkpoints import shipped_checkpoint
+    from mocapnet.nn.infer import check_skeleton, load_model
+
+    if path is not None:
+        if not Path(path).is_file():
+            raise FileNotFoundError(f"{method}: checkpoint {path} not found")
+        model = load_model(path)
+        if type(model).__name__ != _CLASS[method]:
+            raise ValueError(f"{method}: {path} holds a {type(model).__name__} network, not {_CLASS[method]}")
+
+        def given(motion: Motion) -> object:
+            check_skeleton(model, motion.skeleton, f"checkpoint {path}", motion.fps)
+            return model
+
+        return given
+    cache: dict[tuple, object] = {}
+
+    def shipped(motion: Motion) -> object:
+        key = motion.skeleton.topology()
+        if key not in cache:
+            ckpt = shipped_checkpoint(method, motion.skeleton)
+            cache[key] = load_model(ckpt)
+            check_skeleton(cache[key], motion.skeleton, f"shipped checkpoint {ckpt.name}", motion.fps)
+        return cache[key]
+
+    return shipped
+
+
+def _paths(checkpoints: Sequence[str] | str) -> list[str]:
+    """``checkpoints`` as a list (the ``name:checkpoints=path`` option form gives one string)."""
+    return [checkpoints] if isinstance(checkpoints, str) else list(checkpoints)
+
+
+def _check_mode(mode: str) -> str:
+    from mocapnet.nn.infer import MODES
+
+    if mode not in MODES:
+        raise ValueError(f"mode must be one of {', '.join(MODES)}, got {mode!r}")
+    return mode
+
+
+def _single(method: str):
+    def factory(context: MethodContext, checkpoints: Sequence[str] | str = (), mode: str = "sequence"):
+        from mocapnet.nn.infer import clean_channels
+
+        checkpoints = _paths(checkpoints)
+        if len(checkpoints) > 1:
+            raise ValueError(f"{method} takes one checkpoint, got {len(checkpoints)}")
+        resolve = _resolver(method, checkpoints[0] if checkpoints else None)
+        _check_mode(mode)
+
+        def clean(noisy: Motion, mask: np.ndarray) -> np.ndarray:
+            return clean_channels(resolve(noisy), noisy.channels, mask, noisy.skeleton, noisy.fps, mode)
+
+        return clean
+
+    return factory
+
+
+register("ebf", "angles", help=_HELP.format(what="EBF: learned adaptive Gaussian filter per channel per frame"))(
+    _single("ebf")
+)
+register("ebd", "angles", help=_HELP.format(what="EBD: learned gap filling (missing samples only)"))(_single("ebd"))
+register("bf", "angles", help=_HELP.format(what="BF ablation: EBF without its encoder"))(_single("bf"))
+register("nn", "angles", help=_HELP.format(what="NN ablation: dense network over a 31-frame window"))(_single("nn"))
+
+
+@register("ebd+ebf", "angles", help=_HELP.format(what="EBD fills gaps, then EBF denoises; checkpoints: EBD,EBF"))
+def _ebd_ebf(context: MethodContext, checkpoints: Sequence[str] | str = (), mode: str = "sequence"):
+    from mocapnet.nn.infer import clean_channels
+
+    checkpoints = _paths(checkpoints)
+    if len(checkpoints) not in (0, 2):
+        raise ValueError(f"ebd+ebf takes two checkpoints (EBD,EBF), got {len(checkpoints)}")
+    ebd = _resolver("ebd", checkpoints[0] if checkpoints else None)
+    ebf = _resolver("ebf", checkpoints[1] if checkpoints else None)
+    _check_mode(mode)
+
+    def clean(noisy: Motion, mask: np.ndarray) -> np.ndarray:
+        filled = clean_channels(ebd(noisy), noisy.channels, mask, noisy.skeleton, noisy.fps, mode)
+        no_gaps = np.zeros_like(mask)
+        return clean_channels(ebf(noisy), filled, no_gaps, noisy.skeleton, noisy.fps, mode)
+
+    return clean

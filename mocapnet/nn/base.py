@@ -1,0 +1,97 @@
+"""What every cleaning network shares: normaliser buffers, skeleton metadata in its hyper-parameters, the
+optimiser, and validation that accumulates one RMS error over a whole validation set.
+
+A batch is a dict of float32 tensors (see ``mocapnet.nn.data``): ``filled [B, T, C]`` the corrupted scored
+channels with gaps linearly interpolated (degrees), ``mask [B, T, C]`` True where missing, ``clean [B, T, C]``
+the truth (degrees), ``angvel [B, T, 3]`` the root angular velocity (rad/s).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import lightning as L
+import numpy as np
+import torch
+
+from mocapnet.nn.features import Normaliser
+
+
+class CleanerModule(L.LightningModule):
+    """Base LightningModule. Subclasses set ``val_metric`` (the logged name), implement ``forward`` (sequence
+    mode), ``windowed`` and ``loss_terms``."""
+
+    val_metric = "val/angle_err_deg"
+
+    def __init__(self, n_channels: int, lr: float, weight_decay: float, lr_patience: int) -> None:
+        super().__init__()
+        self.register_buffer("center", torch.zeros(n_channels))
+        self.register_buffer("scale", torch.ones(n_channels))
+        self.register_buffer("angvel_scale", torch.ones(3))
+        self._sse = 0.0
+        self._count = 0
+
+    def set_normaliser(self, norm: Normaliser) -> None:
+        """Copy training-set statistics into the buffers (saved with every checkpoint)."""
+        self.center.copy_(torch.as_tensor(norm.center, dtype=torch.float32))
+        self.scale.copy_(torch.as_tensor(norm.scale, dtype=torch.float32))
+        self.angvel_scale.copy_(torch.as_tensor(norm.angvel_scale, dtype=torch.float32))
+
+    def normalise(self, x: torch.Tensor) -> torch.Tensor:
+        """Scored channels ``[..., C]`` (degrees) → wrapped into ``center ± 180``, centred, scaled, clipped to
+        ±8 (so a pose far outside the training range cannot saturate the network)."""
+        return ((torch.remainder(x - self.center + 180.0, 360.0) - 180.0) / self.scale).clamp(-8.0, 8.0)
+
+    def angvel_features(self, angvel: torch.Tensor) -> torch.Tensor:
+        """Root angular velocity ``[..., 3]`` (rad/s) → scaled, clipped to ±8."""
+        return (angvel / self.angvel_scale).clamp(-8.0, 8.0)
+
+    def loss_terms(self, batch: dict[str, torch.Tensor], pred: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Squared errors (degrees²) and the boolean selection ``[B, T, C]`` they are averaged over."""
+        return (pred - batch["clean"]) ** 2, torch.ones_like(batch["mask"])
+
+    def predict_batch(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
+        """Sequence-mode output ``[B, T, C]`` (degrees) for a batch."""
+        raise NotImplementedError
+
+    def windowed(self, filled: torch.Tensor, mask: torch.Tensor, angvel: torch.Tensor) -> torch.Tensor:
+        """Windowed-mode output ``[T, C]`` for one clip (``filled``, ``mask`` ``[T, C]``, ``angvel [T, 3]``)."""
+        raise NotImplementedError
+
+    def training_step(self, batch: dict[str, torch.Tensor], batch_idx: int) -> torch.Tensor:
+        sq, sel = self.loss_terms(batch, self.predict_batch(batch))
+        loss = (sq * sel).sum() / sel.sum().clamp(min=1)
+        self.log("train/loss", loss, prog_bar=True, batch_size=batch["clean"].shape[0])
+        self.log("train/rms_deg", loss.detach().sqrt(), batch_size=batch["clean"].shape[0])
+        return loss
+
+    def on_validation_epoch_start(self) -> None:
+        self._sse, self._count = 0.0, 0
+
+    def validation_step(self, batch: dict[str, torch.Tensor], batch_idx: int) -> None:
+        pred = self.predict_batch(batch)
+        diff = torch.remainder(pred - batch["clean"] + 180.0, 360.0) - 180.0
+        _, sel = self.loss_terms(batch, pred)
+        self._sse += float((diff**2 * sel).sum())
+        self._count += int(sel.sum())
+
+    def on_validation_epoch_end(self) -> None:
+        totals = torch.tensor([self._sse, float(self._count)], dtype=torch.float64, device=self.device)
+        totals = self.trainer.strategy.reduce(totals, reduce_op="sum") if self.trainer.world_size > 1 else totals
+        value = float(np.sqrt(float(totals[0]) / max(float(totals[1]), 1.0)))
+        self.log(self.val_metric, value, prog_bar=True, sync_dist=True)
+
+    def configure_optimizers(self) -> dict[str, Any]:
+        opt = torch.optim.Adam(self.parameters(), lr=self.hparams.lr, weight_decay=self.hparams.weight_decay)
+        sched = torch.optim.lr_scheduler.ReduceLROnPlateau(opt, factor=0.5, patience=self.hparams.lr_patience)
+        return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "monitor": self.val_metric}}
+
+    def on_save_checkpoint(self, checkpoint: dict[str, Any]) -> None:
+        checkpoint["mocapnet_model"] = type(self).__name__
+        checkpoint["torch_rng_state"] = torch.get_rng_state()
+
+    def on_load_checkpoint(self, checkpoint: dict[str, Any]) -> None:
+        """When a trainer resumes from a checkpoint, continue its dropout random stream (a resumed run then
+        matches an uninterrupted one); plain loading for inference leaves the global generator alone."""
+        if self._trainer is not None and "torch_rng_state" in checkpoint:
+            torch.set_rng_state(checkpoint["torch_rng_state"])

@@ -1,0 +1,212 @@
+"""LightningDataModule for the cleaners: clips in memory, random fixed-length crops corrupted afresh for every
+training window, and a fixed corrupted validation set.
+
+Splits. A corpus of many clips uses its committed 5-fold split (``Corpus.split(fold)``: train = three folds,
+validation = fold k+1, test = fold k). A corpus of a single clip (``cmu120``, ``sample``) is split in time:
+the first ``time_split[0]`` of its frames train, the next ``time_split[1]`` validate, the rest test
+(default 70 % / 15 % / 15 %, see ``mocapnet.corpus.time_segments``).
+
+Training batches. Each batch draws one crop length ``L`` (with probability ``window_fraction`` exactly
+``window_frames``, the length one windowed-mode window covers; otherwise uniform in ``[crop_min, crop_max]``),
+then ``batch_size`` crops of ``L`` frames, uniformly over every valid crop position of the clips at least
+``L`` long. Each crop gets a corruption drawn from ``corruptions`` with fresh noise and gap layout. Noise
+uses the standard deviation σ_c of the whole (training) clip, as PROTOCOL.md defines it for test clips,
+not of the crop. Random streams are seeded by ``(seed, rank, epoch counter)``; the counter is saved in the
+checkpoint, so a resumed run draws the batches an uninterrupted run would.
+
+Validation clips are corrupted once with ``corrupt_motion`` and the protocol's seeds (repeat 0).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Sequence
+from typing import Any
+
+import lightning as L
+import numpy as np
+import torch
+from torch.utils.data import DataLoader, IterableDataset
+
+from mocapnet.corpus import load_corpus
+from mocapnet.corrupt import corrupt_motion, gap_mask, long_gap_mask, seed_for
+from mocapnet.methods.baselines import lerp_fill
+from mocapnet.motion import Motion
+from mocapnet.nn.features import ClipArrays, Normaliser, scored_index, scored_joint_of_channel, topology_hash
+
+TRAIN_CORRUPTIONS = ("none", "angular-K", "uniform-K", "bias-const", "bias-sine", "gaps", "gaps-long", "noise+gaps")
+
+
+def corpus_splits(
+    corpus: str, fold: int, time_split: Sequence[float] = (0.7, 0.15), limit: int | None = None
+) -> tuple[list[Motion], list[Motion], list[Motion]]:
+    """``(train, val, test)`` lists of Motion for a corpus: its fold split, or the time split of its only
+    clip (``mocapnet.corpus.Corpus.split``)."""
+    return load_corpus(corpus, progress=False, limit=limit).split(fold, time_split=(time_split[0], time_split[1]))
+
+
+def _noise(name: str, crop: np.ndarray, sigma: np.ndarray, fps: float, rng: np.random.Generator) -> np.ndarray:
+    """Additive noise ``[L, C_s]`` of a noise corruption with the clip's ``sigma [C_s]`` (see corrupt.py)."""
+    shape = crop.shape
+    if name.startswith("angular-") or name == "noise+gaps":
+        k = 0.5 if name == "noise+gaps" else float(name.partition("-")[2])
+        return rng.standard_normal(shape) * k * sigma
+    if name.startswith("uniform-"):
+        return rng.uniform(-1.0, 1.0, shape) * np.sqrt(3.0) * float(name.partition("-")[2]) * sigma
+    if name in ("bias-const", "bias-sine"):
+        noise = rng.standard_normal(shape) * 0.5 * sigma
+        if name == "bias-const":
+            return noise + rng.choice([-1.0, 1.0], size=shape[1]) * 0.5 * sigma
+        freq = rng.uniform(0.1, 1.0, shape[1])
+        phase = rng.uniform(0.0, 2 * np.pi, shape[1])
+        t = (np.arange(shape[0]) / fps)[:, None]
+        return noise + 0.5 * sigma * np.sin(2 * np.pi * freq * t + phase)
+    return np.zeros(shape)
+
+
+def corrupt_window(
+    crop: np.ndarray, sigma: np.ndarray, joint_of_channel: np.ndarray, fps: float, name: str, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray]:
+    """Corrupt a training crop of scored channels ``[L, C_s]`` (degrees) with the training corruption
+    ``name`` (one of ``TRAIN_CORRUPTIONS``, K a number); ``sigma [C_s]`` is the clip's σ_c and
+    ``joint_of_channel [C_s]`` maps channels to scored joints for gaps. Returns ``(noisy, mask)``,
+    ``noisy`` holding the corrupted (not yet filled) values where the mask is True."""
+    known = name in TRAIN_CORRUPTIONS or name.startswith(("angular-", "uniform-"))
+    if not known:
+        raise ValueError(f"training corruption {name!r} is not supported; use one of {', '.join(TRAIN_CORRUPTIONS)}")
+    noisy = crop + _noise(name, crop, sigma, fps, rng)
+    n_joints = int(joint_of_channel.max()) + 1
+    if name in ("gaps", "noise+gaps"):
+        joint_mask = gap_mask(len(crop), n_joints, fps, rng)
+    elif name == "gaps-long":
+        joint_mask = long_gap_mask(len(crop), np.arange(n_joints), n_joints, fps, rng)
+    else:
+        joint_mask = np.zeros((len(crop), n_joints), dtype=bool)
+    return noisy, joint_mask[:, joint_of_channel]
+
+
+def as_batch(filled: np.ndarray, mask: np.ndarray, clean: np.ndarray, angvel: np.ndarray) -> dict[str, torch.Tensor]:
+    """Arrays ``[B, T, ·]`` → the batch dict the modules take (float32 tensors, bool mask)."""
+    return {
+        "filled": torch.as_tensor(filled, dtype=torch.float32),
+        "mask": torch.as_tensor(mask, dtype=torch.bool),
+        "clean": torch.as_tensor(clean, dtype=torch.float32),
+        "angvel": torch.as_tensor(angvel, dtype=torch.float32),
+    }
+
+
+class CropStream(IterableDataset):
+    """Endless-style stream of ``steps`` training batches per epoch (see module docstring)."""
+
+    def __init__(self, module: MotionDataModule) -> None:
+        self.module = module
+
+    def __len__(self) -> int:
+        return self.module.hparams.steps_per_epoch
+
+    def __iter__(self) -> Iterator[dict[str, torch.Tensor]]:
+        dm = self.module
+        rng = np.random.default_rng([dm.hparams.seed, dm.rank, dm.epoch_counter])
+        dm.epoch_counter += 1
+        for _ in range(dm.hparams.steps_per_epoch):
+            yield dm.sample_batch(rng)
+
+
+class MotionDataModule(L.LightningDataModule):
+    """Splits, training crops and validation clips of one corpus (module docstring).
+
+    After ``setup()``: ``n_channels`` (scored channels), ``skeleton_hash``, ``fps``, ``normaliser()``.
+    """
+
+    def __init__(
+        self,
+        corpus: str = "bandai2",
+        fold: int = 0,
+        time_split: tuple[float, float] = (0.7, 0.15),
+        corruptions: tuple[str, ...] = ("angular-0.5",),
+        val_corruptions: tuple[str, ...] = ("angular-0.5",),
+        batch_size: int = 32,
+        crop_min: int = 64,
+        crop_max: int = 128,
+        window_frames: int = 31,
+        window_fraction: float = 0.25,
+        steps_per_epoch: int = 200,
+        val_limit: int | None = None,
+        limit: int | None = None,
+        seed: int = 0,
+    ) -> None:
+        super().__init__()
+        self.save_hyperparameters()
+        self.epoch_counter = 0
+        self.train_clips: list[ClipArrays] = []
+        self.val_batches: list[dict[str, torch.Tensor]] = []
+
+    @property
+    def rank(self) -> int:
+        return self.trainer.global_rank if self.trainer is not None else 0
+
+    def setup(self, stage: str | None = None) -> None:
+        if self.train_clips:
+            return
+        hp = self.hparams
+        train, val, _ = corpus_splits(hp.corpus, hp.fold, hp.time_split, hp.limit)
+        if not train or not val:
+            raise ValueError(f"corpus {hp.corpus!r} fold {hp.fold}: empty training or validation split")
+        skeleton = train[0].skeleton
+        self.skeleton_hash = topology_hash(skeleton)
+        self.fps = float(train[0].fps)
+        self.n_channels = int(skeleton.scored_mask.sum())
+        self.channel_labels = [skeleton.channel_labels[i] for i in scored_index(skeleton)]
+        self.joint_of_channel = scored_joint_of_channel(skeleton)
+        self.train_clips = [ClipArrays.from_motion(m) for m in train]
+        self.lengths = np.array([c.scored.shape[0] for c in self.train_clips])
+        val = val[:: max(1, len(val) // hp.val_limit)][: hp.val_limit] if hp.val_limit else val
+        self.val_batches = [self.corrupted_clip(m, c) for m in val for c in hp.val_corruptions]
+
+    def normaliser(self) -> Normaliser:
+        """Input statistics of the clean training clips."""
+        return Normaliser.fit([c.scored for c in self.train_clips], [c.angvel for c in self.train_clips])
+
+    def corrupted_clip(self, motion: Motion, corruption: str, repeat: int = 0) -> dict[str, torch.Tensor]:
+        """One whole clip as a batch of 1, corrupted with the protocol's seed for ``repeat``."""
+        rng = np.random.default_rng(seed_for(self.hparams.corpus, motion.name, repeat, corruption))
+        noisy, mask = corrupt_motion(motion, corruption, rng)
+        idx = scored_index(motion.skeleton)
+        clip = ClipArrays.from_motion(motion)
+        filled = lerp_fill(noisy, mask)[:, idx]
+        return as_batch(filled[None], mask[None][..., idx], clip.scored[None], clip.angvel[None])
+
+    def sample_batch(self, rng: np.random.Generator) -> dict[str, torch.Tensor]:
+        """One training batch (module docstring)."""
+        hp = self.hparams
+        if rng.random() < hp.window_fraction:
+            length = hp.window_frames
+        else:
+            length = int(rng.integers(hp.crop_min, hp.crop_max + 1))
+        length = min(length, int(self.lengths.max()))
+        spans = np.maximum(self.lengths - length + 1, 0).astype(np.float64)
+        clips = rng.choice(len(self.train_clips), size=hp.batch_size, p=spans / spans.sum())
+        out = {k: [] for k in ("filled", "mask", "clean", "angvel")}
+        for i in clips:
+            clip = self.train_clips[i]
+            start = int(rng.integers(0, spans[i]))
+            sl = slice(start, start + length)
+            clean = clip.scored[sl].astype(np.float64)
+            corruption = hp.corruptions[int(rng.integers(len(hp.corruptions)))]
+            noisy, mask = corrupt_window(clean, clip.sigma, self.joint_of_channel, clip.fps, corruption, rng)
+            out["filled"].append(lerp_fill(noisy, mask) if mask.any() else noisy)
+            out["mask"].append(mask)
+            out["clean"].append(clean)
+            out["angvel"].append(clip.angvel[sl])
+        return as_batch(*(np.stack(out[k]) for k in ("filled", "mask", "clean", "angvel")))
+
+    def train_dataloader(self) -> DataLoader:
+        return DataLoader(CropStream(self), batch_size=None, num_workers=0)
+
+    def val_dataloader(self) -> DataLoader:
+        return DataLoader(self.val_batches, batch_size=None, num_workers=0)
+
+    def state_dict(self) -> dict[str, Any]:
+        return {"epoch_counter": self.epoch_counter}
+
+    def load_state_dict(self, state_dict: dict[str, Any]) -> None:
+        self.epoch_counter = int(state_dict["epoch_counter"])

@@ -1,0 +1,124 @@
+"""EBF (Encoder-Bidirectional-Filter): predicts, for every scored channel at every frame, a smoothing filter
+over the ``2·half+1`` frames around it and applies it to the noisy input (EBF paper, Sec. 3).
+
+Per frame the input is the normalised scored channels plus the root angular velocity; an encoder of
+``encoder_layers`` tanh layers maps it to a ``code``-D vector (``encoder_layers=0`` gives the BF ablation:
+no encoder); two bidirectional LSTM layers (``hidden`` units per direction, dropout on their inputs) follow;
+a filter head of ``head_layers`` tanh layers ends in the filter parameters:
+
+* ``filter_shape="gaussian"``: one ``log σ`` per channel (σ in frames, ``exp`` keeps it positive); taps are the
+  normalised Gaussian ``w(k) ∝ exp(-k²/2σ²)``, ``k = -half … half``;
+* ``filter_shape="free"``: ``2·half+1`` logits per channel, softmax over taps;
+* ``bias=True`` adds one bias per channel (non-zero-mean noise): ``x̂(t) = Σ_k w(k) x(t+k) − b(t)``, with
+  ``b`` bounded to ±3 channel scales.
+
+Departures from the paper, all configurable: hidden size 64 per direction by default (the paper used about
+one unit per channel: 126 for 126 channels; bandai2 has 60 scored channels, CMU 90); PyTorch's default weight
+initialisation (the paper's uniform [-0.5, 0.5] saturates 128-wide tanh layers) with the σ head starting at
+``sigma_init`` frames everywhere; inputs wrapped into ``center ± 180°`` before normalising (see
+``features.Normaliser``); training (``mocapnet.nn.train``) uses Adam with the learning rate halved when the
+validation error stalls, and gradient clipping.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+from mocapnet.nn.base import CleanerModule
+from mocapnet.nn.layers import BLSTM, apply_filter, gaussian_weights, init_log_sigma_bias, mlp, tapered
+
+
+class EBF(CleanerModule):
+    """Encoder-Bidirectional-Filter denoiser for ``n_channels`` scored channels (degrees).
+
+    Metadata kept in the hyper-parameters (checked by the adapters, not used by the network):
+    ``skeleton_hash`` (``features.topology_hash``), ``fps``, ``corpus``.
+    """
+
+    def __init__(
+        self,
+        n_channels: int,
+        hidden: int = 64,
+        code: int = 64,
+        width: int = 128,
+        encoder_layers: int = 4,
+        head_layers: int = 4,
+        dropout: float = 0.5,
+        half: int = 15,
+        filter_shape: str = "gaussian",
+        bias: bool = False,
+        sigma_init: float = 2.0,
+        lr: float = 1e-3,
+        weight_decay: float = 0.0,
+        lr_patience: int = 4,
+        skeleton_hash: str = "",
+        fps: float = 0.0,
+        corpus: str = "",
+    ) -> None:
+        super().__init__(n_channels, lr, weight_decay, lr_patience)
+        if filter_shape not in ("gaussian", "free"):
+            raise ValueError(f"filter_shape must be 'gaussian' or 'free', got {filter_shape!r}")
+        self.save_hyperparameters()
+        n_in = n_channels + 3
+        encoder = mlp(tapered(n_in, code, encoder_layers), last_activation=True) if encoder_layers else None
+        self.encoder = encoder or nn.Identity()
+        self.blstm = BLSTM(code if encoder_layers else n_in, hidden, layers=2, dropout=dropout)
+        self.n_filter = n_channels * (2 * half + 1) if filter_shape == "free" else n_channels
+        n_out = self.n_filter + (n_channels if bias else 0)
+        self.head = mlp([2 * hidden] + [width] * (head_layers - 1) + [n_out], last_activation=False)
+        last = self.head[-1]
+        if filter_shape == "gaussian":
+            init_log_sigma_bias(last, sigma_init)
+        else:
+            nn.init.uniform_(last.weight, -1e-3, 1e-3)
+            k = torch.arange(-half, half + 1, dtype=torch.float32)
+            with torch.no_grad():
+                last.bias[: self.n_filter] = (-0.5 * k**2 / sigma_init**2).repeat(n_channels)
+        if bias:
+            with torch.no_grad():
+                last.bias[self.n_filter :] = 0.0
+
+    def features(self, filled: torch.Tensor, angvel: torch.Tensor) -> torch.Tensor:
+        """``[B, T, C]`` degrees and ``[B, T, 3]`` rad/s → encoder input ``[B, T, C + 3]``."""
+        return torch.cat([self.normalise(filled), self.angvel_features(angvel)], dim=-1)
+
+    def filter_weights(self, params: torch.Tensor) -> torch.Tensor:
+        """Head output ``[B, T, P]`` → tap weights ``[B, C, T, K]`` (each row sums to 1)."""
+        b, t, _ = params.shape
+        c, k = self.hparams.n_channels, 2 * self.hparams.half + 1
+        raw = params[..., : self.n_filter]
+        if self.hparams.filter_shape == "gaussian":
+            return gaussian_weights(raw.clamp(-5.0, 5.0).transpose(1, 2), self.hparams.half)
+        return torch.softmax(raw.reshape(b, t, c, k).permute(0, 2, 1, 3), dim=-1)
+
+    def sigma(self, params: torch.Tensor) -> torch.Tensor:
+        """Gaussian σ ``[B, T, C]`` in frames (gaussian filter only)."""
+        return params[..., : self.n_filter].clamp(-5.0, 5.0).exp()
+
+    def apply_params(self, filled: torch.Tensor, params: torch.Tensor) -> torch.Tensor:
+        """Filter ``filled [B, T, C]`` with the head output ``params [B, T, P]`` → ``[B, T, C]`` degrees."""
+        return self.debias(apply_filter(filled, self.filter_weights(params)), params)
+
+    def debias(self, filtered: torch.Tensor, params: torch.Tensor) -> torch.Tensor:
+        """Subtract the predicted bias (``bias=True``; else identity): ``filtered [..., C]`` degrees, head output
+        ``params [..., P]``; the bias is ``3·tanh(raw/3)`` channel scales."""
+        if not self.hparams.bias:
+            return filtered
+        return filtered - self.scale * 3.0 * torch.tanh(params[..., self.n_filter :] / 3.0)
+
+    def filter_params(self, filled: torch.Tensor, angvel: torch.Tensor) -> torch.Tensor:
+        """Sequence mode: head output ``[B, T, P]`` for whole clips ``[B, T, C]``, ``[B, T, 3]``."""
+        return self.head(self.blstm(self.encoder(self.features(filled, angvel))))
+
+    def forward(self, filled: torch.Tensor, angvel: torch.Tensor) -> torch.Tensor:
+        """Sequence mode: cleaned channels ``[B, T, C]`` (degrees) from noisy ``[B, T, C]`` and ``[B, T, 3]``."""
+        return self.apply_params(filled, self.filter_params(filled, angvel))
+
+    def predict_batch(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
+        return self(batch["filled"], batch["angvel"])
+
+    def windowed(self, filled: torch.Tensor, mask: torch.Tensor, angvel: torch.Tensor) -> torch.Tensor:
+        codes = self.encoder(self.features(filled, angvel))
+        params = self.head(self.blstm.windowed(codes, self.hparams.half))
+        return self.apply_params(filled[None], params[None])[0]

@@ -1,0 +1,81 @@
+"""Training from a composed Hydra config (``conf/train.yaml``); ``scripts/train.py`` is the entry point.
+
+``train(cfg)`` builds the data module and the model from ``cfg.data`` / ``cfg.model`` (Hydra ``_target_``),
+copies the training-set normaliser into the model, and fits with a Lightning ``Trainer`` from
+``cfg.trainer``, TensorBoard logging from ``cfg.logger`` and two checkpoints under ``<run_dir>/checkpoints``:
+``best.ckpt`` (lowest validation error; model selection uses validation only) and ``last.ckpt``
+(``ckpt_path=last`` resumes a killed run from it, optimizer, scheduler, data stream and time budget included).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import hydra
+import lightning as L
+import torch
+from lightning.pytorch.callbacks import LearningRateMonitor, ModelCheckpoint
+from omegaconf import DictConfig, OmegaConf
+
+from mocapnet.nn.base import CleanerModule
+from mocapnet.nn.data import MotionDataModule
+
+
+def configure_torch(threads: int | None) -> None:
+    """CPU settings for training and inference: thread count and flush-to-zero for denormals (tanh/LSTM
+    gradients otherwise slow the CPU down by hitting denormal arithmetic)."""
+    if threads:
+        torch.set_num_threads(int(threads))
+    torch.set_flush_denormal(True)
+
+
+def build(cfg: DictConfig) -> tuple[MotionDataModule, CleanerModule]:
+    """Data module (set up) and a fresh model sized for it, with its normaliser set."""
+    data: MotionDataModule = hydra.utils.instantiate(cfg.data, seed=cfg.seed, _convert_="all")
+    data.setup("fit")
+    model: CleanerModule = hydra.utils.instantiate(
+        cfg.model,
+        n_channels=data.n_channels,
+        skeleton_hash=data.skeleton_hash,
+        fps=data.fps,
+        corpus=cfg.data.corpus,
+        _convert_="all",
+    )
+    model.set_normaliser(data.normaliser())
+    return data, model
+
+
+def train(cfg: DictConfig) -> Path:
+    """Fit the configured model; return the path of the best checkpoint (or the last one when validation
+    never ran). Writes ``<run_dir>/config.yaml`` and ``<run_dir>/result.json`` (best score, paths)."""
+    configure_torch(cfg.get("threads"))
+    L.seed_everything(cfg.seed, workers=True)
+    run_dir = Path(cfg.run_dir)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    (run_dir / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
+    data, model = build(cfg)
+    ckpt_dir = run_dir / "checkpoints"
+    best = ModelCheckpoint(
+        dirpath=ckpt_dir, filename="best", monitor=model.val_metric, mode="min", save_last=True, save_top_k=1
+    )
+    callbacks = [best, LearningRateMonitor()] if cfg.get("logger") else [best]
+    logger = hydra.utils.instantiate(cfg.logger, save_dir=str(run_dir)) if cfg.get("logger") else False
+    trainer = L.Trainer(**OmegaConf.to_container(cfg.trainer, resolve=True), callbacks=callbacks, logger=logger)
+    ckpt_path = cfg.get("ckpt_path")
+    if ckpt_path == "last" and not (ckpt_dir / "last.ckpt").exists():
+        ckpt_path = None
+    trainer.fit(model, datamodule=data, ckpt_path=ckpt_path)
+    result = Path(best.best_model_path) if best.best_model_path else ckpt_dir / "last.ckpt"
+    if trainer.is_global_zero:
+        score = best.best_model_score
+        summary = {
+            "best": str(result),
+            "last": str(ckpt_dir / "last.ckpt"),
+            "monitor": model.val_metric,
+            "best_score": None if score is None else float(score),
+            "epochs": trainer.current_epoch,
+            "global_step": trainer.global_step,
+        }
+        (run_dir / "result.json").write_text(json.dumps(summary, indent=1) + "\n")
+    return result

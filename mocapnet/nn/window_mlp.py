@@ -1,0 +1,53 @@
+"""NN ablation of the EBF paper (Sec. 4.1): a feed-forward network of 6 dense layers (tanh except the last)
+from the ``2·half+1``-frame window of inputs (scored channels + root angular velocity) to the cleaned
+channels of the centre frame. It has no recurrence, so sequence and windowed modes are the same computation.
+"""
+
+from __future__ import annotations
+
+import torch
+
+from mocapnet.nn.base import CleanerModule
+from mocapnet.nn.layers import mlp, unfold_taps
+
+
+class WindowMLP(CleanerModule):
+    """Dense denoiser over a ``2·half+1``-frame window for ``n_channels`` scored channels (degrees)."""
+
+    def __init__(
+        self,
+        n_channels: int,
+        widths: tuple[int, ...] = (256, 256, 128, 128, 128),
+        half: int = 15,
+        dropout: float = 0.0,
+        lr: float = 1e-3,
+        weight_decay: float = 0.0,
+        lr_patience: int = 4,
+        skeleton_hash: str = "",
+        fps: float = 0.0,
+        corpus: str = "",
+    ) -> None:
+        super().__init__(n_channels, lr, weight_decay, lr_patience)
+        self.save_hyperparameters()
+        n_in = (n_channels + 3) * (2 * half + 1)
+        self.drop = torch.nn.Dropout(dropout)
+        self.net = mlp([n_in, *widths, n_channels], last_activation=False)
+        torch.nn.init.zeros_(self.net[-1].weight)
+        torch.nn.init.zeros_(self.net[-1].bias)
+
+    def forward(self, filled: torch.Tensor, angvel: torch.Tensor) -> torch.Tensor:
+        """``filled [B, T, C]`` degrees, ``angvel [B, T, 3]`` rad/s → cleaned ``[B, T, C]`` degrees.
+
+        The network predicts the centre frame's pose in normalised units; the result is put on the same
+        360° branch as the input so it stays continuous with the unwrapped channels."""
+        feats = torch.cat([self.normalise(filled), self.angvel_features(angvel)], dim=-1)
+        windows = unfold_taps(feats, self.hparams.half).permute(0, 2, 1, 3)  # [B, T, C + 3, K]
+        out = self.net(self.drop(windows.flatten(2)))
+        pred = self.center + out * self.scale
+        return filled + torch.remainder(pred - filled + 180.0, 360.0) - 180.0
+
+    def predict_batch(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
+        return self(batch["filled"], batch["angvel"])
+
+    def windowed(self, filled: torch.Tensor, mask: torch.Tensor, angvel: torch.Tensor) -> torch.Tensor:
+        return self(filled[None], angvel[None])[0]

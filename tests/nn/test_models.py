@@ -1,0 +1,100 @@
+"""EBF, EBD and the NN ablation: shapes, overfitting one batch, checkpoint round trip, modes and streaming."""
+
+from __future__ import annotations
+
+import lightning as L
+import numpy as np
+import pytest
+import torch
+
+from mocapnet.nn import EBD, EBF, load_model
+from mocapnet.nn.infer import EBFStream, clean_channels
+
+KINDS = ("ebf", "ebf-bias", "ebf-free", "bf", "ebd", "nn")
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_output_shape_and_gap_handling(kind, sample, tiny, batch):
+    model = tiny(kind, sample).eval()
+    with torch.no_grad():
+        out = model.predict_batch(batch)
+    assert out.shape == batch["clean"].shape and torch.isfinite(out).all()
+    if kind == "ebd":  # observed samples pass through unchanged
+        keep = ~batch["mask"]
+        torch.testing.assert_close(out[keep], batch["filled"][keep])
+
+
+def test_filter_weights_sum_to_one(sample, tiny, batch):
+    for kind in ("ebf", "ebf-free"):
+        model = tiny(kind, sample).eval()
+        with torch.no_grad():
+            params = model.filter_params(batch["filled"], batch["angvel"])
+            w = model.filter_weights(params)
+        assert w.shape == (2, batch["clean"].shape[-1], 40, 31)
+        torch.testing.assert_close(w.sum(-1), torch.ones(w.shape[:-1]))
+
+
+@pytest.mark.parametrize("kind", ("ebf-bias", "ebd"))
+def test_tiny_model_overfits_one_batch(kind, sample, tiny, batch):
+    model = tiny(kind, sample, dropout=0.0)
+    opt = torch.optim.Adam(model.parameters(), lr=1e-2)
+    losses = []
+    for _ in range(60):
+        sq, sel = model.loss_terms(batch, model.predict_batch(batch))
+        loss = (sq * sel).sum() / sel.sum()
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        losses.append(loss.item())
+    assert losses[-1] < 0.5 * losses[0]
+
+
+@pytest.mark.parametrize("cls,kind", ((EBF, "ebf-bias"), (EBD, "ebd")))
+def test_load_from_checkpoint_gives_identical_outputs(cls, kind, sample, tiny, batch, tmp_path):
+    model = tiny(kind, sample).eval()
+    trainer = L.Trainer(logger=False, enable_checkpointing=False, enable_progress_bar=False, max_epochs=0)
+    trainer.strategy.connect(model)
+    path = tmp_path / "m.ckpt"
+    trainer.save_checkpoint(path)
+    loaded = cls.load_from_checkpoint(path, map_location="cpu").eval()
+    with torch.no_grad():
+        torch.testing.assert_close(loaded.predict_batch(batch), model.predict_batch(batch), rtol=0, atol=0)
+    torch.testing.assert_close(loaded.center, model.center)
+    assert type(load_model(path)) is cls
+
+
+@pytest.mark.parametrize("kind,length", (("ebf", 31), ("ebf-free", 20), ("ebd", 110), ("nn", 50)))
+def test_windowed_and_sequence_agree_within_one_window(kind, length, sample, tiny):
+    model = tiny(kind, sample).eval()
+    clip = sample.with_channels(sample.channels[500 : 500 + length])
+    mask = np.zeros(clip.channels.shape, dtype=bool)
+    mask[10:18, clip.skeleton.joint_channels(5)] = True
+    noisy = clip.channels.copy()
+    noisy[mask] = np.nan
+    seq = clean_channels(model, noisy, mask, clip.skeleton, clip.fps, "sequence")
+    win = clean_channels(model, noisy, mask, clip.skeleton, clip.fps, "windowed")
+    np.testing.assert_allclose(win, seq, atol=1e-4)
+
+
+def test_windowed_mode_is_local(sample, tiny):
+    """In windowed mode frame t does not depend on frames beyond t ± 15 (away from the clip ends)."""
+    model = tiny("ebf", sample).eval()
+    clip = sample.channels[:200]
+    no_mask = np.zeros(clip.shape, dtype=bool)
+    base = clean_channels(model, clip, no_mask, sample.skeleton, sample.fps, "windowed")
+    changed = clip.copy()
+    changed[150:, sample.skeleton.scored_mask] += 30.0
+    out = clean_channels(model, changed, no_mask, sample.skeleton, sample.fps, "windowed")
+    np.testing.assert_allclose(out[:134], base[:134], atol=1e-4)
+    assert np.abs(out[148] - base[148]).max() > 1e-3
+
+
+@pytest.mark.parametrize("length", (12, 31, 75))
+def test_stream_matches_windowed_mode(length, sample, tiny):
+    model = tiny("ebf-bias", sample).eval()
+    clip = sample.channels[300 : 300 + length]
+    expected = clean_channels(model, clip, np.zeros(clip.shape, bool), sample.skeleton, sample.fps, "windowed")
+    stream = EBFStream(model, sample.skeleton, sample.fps)
+    got = [item for frame in clip for item in stream.push(frame)] + stream.flush()
+    assert [i for i, _ in got] == list(range(length))
+    np.testing.assert_allclose(np.stack([f for _, f in got]), expected, atol=1e-4)

@@ -1,0 +1,111 @@
+"""Hydra configs, the training entry point, determinism and resuming."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import hydra
+import lightning as L
+import pytest
+import torch
+from hydra import compose, initialize_config_dir
+from hydra.core.hydra_config import HydraConfig
+from omegaconf import OmegaConf, open_dict
+
+from mocapnet.nn import EBD, EBF, WindowMLP
+from mocapnet.nn.data import MotionDataModule
+from mocapnet.nn.train import train
+
+CONF = Path(__file__).resolve().parents[2] / "conf"
+EXPERIMENTS = sorted(p.stem for p in (CONF / "experiment").glob("*.yaml"))
+TINY_MODEL = {
+    "ebf": ["model.hidden=8", "model.code=8", "model.width=16"],
+    "bf": ["model.hidden=8", "model.width=16"],
+    "ebd": ["model.hidden=8", "model.code=8", "model.width=16"],
+    "nn": ["model.widths=[16,16,16,16,16]"],
+}
+QUICK = [
+    "data=sample",
+    "~logger",
+    "threads=1",
+    "trainer.enable_progress_bar=false",
+    "trainer.max_time=null",
+    "data.batch_size=4",
+    "data.crop_min=32",
+    "data.crop_max=48",
+    "data.steps_per_epoch=2",
+]
+
+
+def compose_cfg(overrides: list[str]):
+    """Compose ``conf/train.yaml`` as ``scripts/train.py`` would (Hydra's runtime config set)."""
+    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
+        cfg = compose("train", overrides=overrides, return_hydra_config=True)
+    HydraConfig.instance().set_config(cfg)
+    with open_dict(cfg):
+        del cfg.hydra
+    return cfg
+
+
+def test_every_experiment_exists():
+    assert {"bandai2_ebf", "bandai2_ebd", "cmu120_ebf", "cmu120_ebd", "sample_quick"} <= set(EXPERIMENTS)
+
+
+@pytest.mark.parametrize("experiment", EXPERIMENTS)
+def test_experiment_configs_instantiate(experiment, tmp_path):
+    cfg = compose_cfg([f"experiment={experiment}", f"runs_root={tmp_path}"])
+    data = hydra.utils.instantiate(cfg.data, seed=cfg.seed, _convert_="all")
+    assert isinstance(data, MotionDataModule) and data.hparams.corruptions == list(cfg.corruption.train)
+    model = hydra.utils.instantiate(cfg.model, n_channels=6, _convert_="all")
+    assert isinstance(model, (EBF, EBD, WindowMLP))
+    logger = hydra.utils.instantiate(cfg.logger, save_dir=str(tmp_path))
+    trainer = L.Trainer(**OmegaConf.to_container(cfg.trainer, resolve=True), logger=logger)
+    assert trainer.max_epochs == cfg.trainer.max_epochs
+    assert cfg.run_dir == f"{tmp_path}/{cfg.name}"
+
+
+def test_gpu_and_ddp_trainer_configs_compose():
+    for group, devices in (("gpu", 1), ("ddp", 2)):
+        cfg = compose_cfg([f"trainer={group}"])
+        assert cfg.trainer.accelerator == "gpu" and cfg.trainer.devices == devices
+    cfg = compose_cfg(["trainer.accelerator=gpu", "trainer.devices=2", "trainer.strategy=ddp"])
+    assert cfg.trainer.strategy == "ddp"
+
+
+@pytest.mark.parametrize("model", sorted(TINY_MODEL))
+def test_fast_dev_run(model, tmp_path):
+    corruption = "gaps" if model == "ebd" else "angular"
+    cfg = compose_cfg(
+        [f"model={model}", f"corruption={corruption}", f"runs_root={tmp_path}", "+trainer.fast_dev_run=true"]
+        + QUICK
+        + TINY_MODEL[model]
+    )
+    train(cfg)
+    assert (tmp_path / cfg.name / "result.json").exists()
+
+
+def _final_state(tmp_path: Path, name: str, epochs: int, ckpt_path: str = "null") -> dict[str, torch.Tensor]:
+    cfg = compose_cfg(
+        [f"runs_root={tmp_path}", f"name={name}", f"trainer.max_epochs={epochs}", f"ckpt_path={ckpt_path}"]
+        + QUICK
+        + TINY_MODEL["ebf"]
+    )
+    train(cfg)
+    return torch.load(tmp_path / name / "checkpoints" / "last.ckpt", weights_only=False)
+
+
+def test_fixed_seed_is_deterministic_and_resume_matches_uninterrupted_run(tmp_path):
+    a = _final_state(tmp_path, "a", 2)
+    b = _final_state(tmp_path, "b", 2)
+    for key, value in a["state_dict"].items():
+        torch.testing.assert_close(b["state_dict"][key], value, rtol=0, atol=0)
+    first = _final_state(tmp_path, "c", 1)
+    assert first["global_step"] == 2
+    resumed = _final_state(tmp_path, "c", 2, ckpt_path="last")
+    assert resumed["global_step"] == 4 and resumed["epoch"] == 1
+    for key, value in a["state_dict"].items():  # killed after epoch 1 and resumed == run straight through
+        torch.testing.assert_close(resumed["state_dict"][key], value, rtol=0, atol=0)
+    assert resumed["datamodule_hyper_parameters"]["corpus"] == "sample"
+    result = json.loads((tmp_path / "c" / "result.json").read_text())
+    assert result["monitor"] == "val/angle_err_deg" and Path(result["best"]).exists()
