@@ -71,15 +71,21 @@ def channel_std(channels: np.ndarray) -> np.ndarray:
     return channels.std(axis=0)
 
 
-def angular_noise(channels: np.ndarray, scored: np.ndarray, k: float, rng: np.random.Generator) -> np.ndarray:
-    """Add i.i.d. Gaussian noise of std ``k·σ_c`` to the scored channels of ``channels [T, C]``."""
-    std = k * channel_std(channels) * scored
+def angular_noise(
+    channels: np.ndarray, scored: np.ndarray, k: float, rng: np.random.Generator, sigma: np.ndarray | None = None
+) -> np.ndarray:
+    """Add i.i.d. Gaussian noise of std ``k·σ_c`` to the scored channels of ``channels [T, C]``; ``sigma``
+    ``[C]`` overrides ``σ_c`` (e.g. the whole clip's σ for a training crop)."""
+    std = k * (channel_std(channels) if sigma is None else sigma) * scored
     return channels + rng.standard_normal(channels.shape) * std
 
 
-def uniform_noise(channels: np.ndarray, scored: np.ndarray, k: float, rng: np.random.Generator) -> np.ndarray:
-    """Add i.i.d. uniform noise with std ``k·σ_c`` (half-width ``√3·k·σ_c``) to the scored channels."""
-    half = np.sqrt(3.0) * k * channel_std(channels) * scored
+def uniform_noise(
+    channels: np.ndarray, scored: np.ndarray, k: float, rng: np.random.Generator, sigma: np.ndarray | None = None
+) -> np.ndarray:
+    """Add i.i.d. uniform noise with std ``k·σ_c`` (half-width ``√3·k·σ_c``) to the scored channels;
+    ``sigma [C]`` overrides ``σ_c``."""
+    half = np.sqrt(3.0) * k * (channel_std(channels) if sigma is None else sigma) * scored
     return channels + rng.uniform(-1.0, 1.0, channels.shape) * half
 
 
@@ -109,6 +115,31 @@ def sine_bias(
     t = np.arange(n_frames)[:, None] / fps
     std = channel_std(channels) if sigma is None else sigma
     return channels + k * std * scored * np.sin(2 * np.pi * freq * t + phase)
+
+
+ADDITIVE_NOISE = ("angular-K", "uniform-K", "bias-const", "bias-sine", "noise+gaps")
+
+
+def additive_noise(
+    corruption: str, channels: np.ndarray, sigma: np.ndarray, fps: float, rng: np.random.Generator
+) -> np.ndarray:
+    """``channels [T, C]`` with the additive angle noise of ``corruption`` (``ADDITIVE_NOISE``; for
+    ``noise+gaps`` its angular-0.5 part), using per-channel ``sigma [C]`` as ``σ_c`` (0 leaves a channel
+    untouched). Raises ValueError for corruptions that are not additive angle noise."""
+    every = np.ones(channels.shape[1], dtype=bool)
+    kind, _, arg = corruption.partition("-")
+    level = _number(arg)
+    if kind == "angular" and level is not None:
+        return angular_noise(channels, every, level, rng, sigma)
+    if kind == "uniform" and level is not None:
+        return uniform_noise(channels, every, level, rng, sigma)
+    if corruption == "noise+gaps":
+        return angular_noise(channels, every, 0.5, rng, sigma)
+    if corruption == "bias-const":
+        return constant_bias(angular_noise(channels, every, 0.5, rng, sigma), every, 0.5, rng, sigma)
+    if corruption == "bias-sine":
+        return sine_bias(angular_noise(channels, every, 0.5, rng, sigma), every, 0.5, fps, rng, sigma)
+    raise ValueError(f"{corruption!r} is not an additive angle noise ({', '.join(ADDITIVE_NOISE)})")
 
 
 def spatial_noise(motion: Motion, std_cm: float | np.ndarray, rng: np.random.Generator) -> np.ndarray:
@@ -255,18 +286,12 @@ def corrupt_motion(motion: Motion, corruption: str, rng: np.random.Generator) ->
         return ch.copy(), no_gaps
     kind, _, arg = corruption.partition("-")
     level = _number(arg.removesuffix("cm"))
-    if kind == "angular" and level is not None:
-        return angular_noise(ch, scored, level, rng), no_gaps
-    if kind == "uniform" and level is not None:
-        return uniform_noise(ch, scored, level, rng), no_gaps
+    if (kind in ("angular", "uniform") and level is not None) or corruption in ("bias-const", "bias-sine"):
+        return additive_noise(corruption, ch, channel_std(ch) * scored, motion.fps, rng), no_gaps
     if corruption == "spatial-ends":
         return spatial_noise(motion, end_joint_std(motion), rng), no_gaps
     if kind == "spatial" and arg.endswith("cm") and level is not None:
         return spatial_noise(motion, level, rng), no_gaps
-    if corruption == "bias-const":
-        return constant_bias(angular_noise(ch, scored, 0.5, rng), scored, 0.5, rng, channel_std(ch)), no_gaps
-    if corruption == "bias-sine":
-        return sine_bias(angular_noise(ch, scored, 0.5, rng), scored, 0.5, motion.fps, rng, channel_std(ch)), no_gaps
     n_j = motion.skeleton.n_joints
     if corruption == "gaps":
         mask = joint_mask_to_channels(motion, gap_mask(motion.n_frames, n_j, motion.fps, rng))

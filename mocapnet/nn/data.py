@@ -28,7 +28,7 @@ import torch
 from torch.utils.data import DataLoader, IterableDataset
 
 from mocapnet.corpus import load_corpus
-from mocapnet.corrupt import corrupt_motion, gap_mask, long_gap_mask, seed_for
+from mocapnet.corrupt import additive_noise, corrupt_motion, gap_mask, long_gap_mask, seed_for
 from mocapnet.methods.baselines import lerp_fill
 from mocapnet.motion import Motion
 from mocapnet.nn.features import ClipArrays, Normaliser, scored_index, scored_joint_of_channel, topology_hash
@@ -44,25 +44,6 @@ def corpus_splits(
     return load_corpus(corpus, progress=False, limit=limit).split(fold, time_split=(time_split[0], time_split[1]))
 
 
-def _noise(name: str, crop: np.ndarray, sigma: np.ndarray, fps: float, rng: np.random.Generator) -> np.ndarray:
-    """Additive noise ``[L, C_s]`` of a noise corruption with the clip's ``sigma [C_s]`` (see corrupt.py)."""
-    shape = crop.shape
-    if name.startswith("angular-") or name == "noise+gaps":
-        k = 0.5 if name == "noise+gaps" else float(name.partition("-")[2])
-        return rng.standard_normal(shape) * k * sigma
-    if name.startswith("uniform-"):
-        return rng.uniform(-1.0, 1.0, shape) * np.sqrt(3.0) * float(name.partition("-")[2]) * sigma
-    if name in ("bias-const", "bias-sine"):
-        noise = rng.standard_normal(shape) * 0.5 * sigma
-        if name == "bias-const":
-            return noise + rng.choice([-1.0, 1.0], size=shape[1]) * 0.5 * sigma
-        freq = rng.uniform(0.1, 1.0, shape[1])
-        phase = rng.uniform(0.0, 2 * np.pi, shape[1])
-        t = (np.arange(shape[0]) / fps)[:, None]
-        return noise + 0.5 * sigma * np.sin(2 * np.pi * freq * t + phase)
-    return np.zeros(shape)
-
-
 def corrupt_window(
     crop: np.ndarray, sigma: np.ndarray, joint_of_channel: np.ndarray, fps: float, name: str, rng: np.random.Generator
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -73,7 +54,7 @@ def corrupt_window(
     known = name in TRAIN_CORRUPTIONS or name.startswith(("angular-", "uniform-"))
     if not known:
         raise ValueError(f"training corruption {name!r} is not supported; use one of {', '.join(TRAIN_CORRUPTIONS)}")
-    noisy = crop + _noise(name, crop, sigma, fps, rng)
+    noisy = crop.copy() if name in ("gaps", "gaps-long") else additive_noise(name, crop, sigma, fps, rng)
     n_joints = int(joint_of_channel.max()) + 1
     if name in ("gaps", "noise+gaps"):
         joint_mask = gap_mask(len(crop), n_joints, fps, rng)
