@@ -15,7 +15,6 @@ import argparse
 import gzip
 import json
 import platform
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -27,6 +26,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from mocapnet.corpus import data_root, list_bvh  # noqa: E402
+from mocapnet.evaluate.benchmark import git_commit  # noqa: E402
 from mocapnet.io.bvh import parse_bvh  # noqa: E402
 
 
@@ -72,10 +72,10 @@ def main() -> None:
             "max_abs_diff": max_diff,
         }
         print(name, results[name])
-    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout
+    commit = git_commit(short=True)
     meta = {
         "command": "python " + " ".join(sys.argv),
-        "commit": commit.strip(),
+        "commit": commit,
         "machine": f"{platform.processor() or platform.machine()}, {platform.python_version()}",
     }
     args.out.parent.mkdir(parents=True, exist_ok=True)

@@ -30,12 +30,10 @@ import os
 import platform
 import re
 import shlex
-import subprocess
 import sys
 import time
 import warnings
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -45,7 +43,9 @@ from tqdm import tqdm
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
+from mocapnet.corpus import data_root  # noqa: E402
 from mocapnet.corrupt import corrupt_markers, gap_mask, motion_markers, point_gap_mask, seed_for  # noqa: E402
+from mocapnet.evaluate.benchmark import git_commit, numpy_int_alias  # noqa: E402
 from mocapnet.io.atomic import atomic_output  # noqa: E402
 from mocapnet.io.bvh import read_bvh  # noqa: E402
 from mocapnet.io.c3d import read_c3d  # noqa: E402
@@ -90,10 +90,6 @@ class Clip:
     markers: Markers
     segment_tracks: Callable[[str], list[int]]
     candidates: list[int]  # tracks a single-marker gap may pick
-
-
-def default_data_root() -> Path:
-    return Path(os.environ.get("MOCAPNET_DATA", REPO.parent / "shared" / "data"))
 
 
 def physical_markers(markers: Markers) -> Markers:
@@ -141,18 +137,6 @@ def corrupt(clip: Clip, corruption: str, repeat: int) -> Markers:
         return corrupt_markers(m, corruption, rng)
     mask = point_gap_mask(corruption, m.n_frames, m.fps, rng, clip.segment_tracks, m.n_markers, clip.candidates, m.name)
     return Markers(m.points, m.visible & ~mask, m.labels, m.fps, m.name)
-
-
-@contextmanager
-def numpy_int_alias() -> Iterator[None]:
-    """``gapfill`` 0.0.7 calls ``np.int`` (removed in NumPy 1.24); alias it to ``int`` for the call only."""
-    np.int = int  # type: ignore[attr-defined]
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            yield
-    finally:
-        del np.int  # type: ignore[attr-defined]
 
 
 def distance_spread(points: np.ndarray, target: int) -> np.ndarray:
@@ -329,15 +313,6 @@ def latency(root: Path, n_markers: int = 40) -> dict:
         for key in ("median_us", "p99_us", "cpu_median_us", "cpu_p99_us"):
             entry[key.replace("_us", "_ratio_to_hold")] = entry[key] / base[key]
     return result
-
-
-def git_commit() -> str:
-    try:
-        return subprocess.run(
-            ["git", "rev-parse", "HEAD"], cwd=REPO, capture_output=True, text=True, check=True
-        ).stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        return "unknown"
 
 
 def summarise(acc: dict, first: str = "source") -> list[dict]:
@@ -527,7 +502,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--data-root",
         type=Path,
-        default=default_data_root(),
+        default=data_root(),
         help="shared data folder (default: $MOCAPNET_DATA or ../shared/data from the repo root)",
     )
     parser.add_argument(

@@ -39,9 +39,7 @@ import platform
 import shlex
 import sys
 import time
-import warnings
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -51,7 +49,9 @@ from tqdm import tqdm
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
+from mocapnet.corpus import data_root  # noqa: E402
 from mocapnet.corrupt import corrupt_markers, joint_mask_to_channels, point_gap_mask, seed_for  # noqa: E402
+from mocapnet.evaluate.benchmark import git_commit, numpy_int_alias  # noqa: E402
 from mocapnet.io.atomic import atomic_output  # noqa: E402
 from mocapnet.io.bvh import read_bvh  # noqa: E402
 from mocapnet.io.c3d import read_c3d  # noqa: E402
@@ -87,40 +87,6 @@ PAPER_NOTE = (
     "0.59-10.2 cm over left/right arm, both arms, left/right leg, both legs; time about 10x the gap "
     "length, linear in it."
 )
-
-
-def default_data_root() -> Path:
-    return Path(os.environ.get("MOCAPNET_DATA", REPO.parent / "shared" / "data"))
-
-
-def git_commit() -> str:
-    """HEAD commit read from ``.git`` files (no git process is started); ``unknown`` when unresolvable."""
-    git = REPO / ".git"
-    try:
-        head = (git / "HEAD").read_text().strip()
-        if not head.startswith("ref: "):
-            return head
-        ref = head[5:]
-        if (git / ref).exists():
-            return (git / ref).read_text().strip()
-        for line in (git / "packed-refs").read_text().splitlines():
-            if line.endswith(" " + ref):
-                return line.split()[0]
-    except OSError:
-        pass
-    return "unknown"
-
-
-@contextmanager
-def numpy_int_alias() -> Iterator[None]:
-    """gapfill 0.0.7 calls ``np.int`` (removed in NumPy 1.24); alias it to ``int`` for the call only."""
-    np.int = int  # type: ignore[attr-defined]
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            yield
-    finally:
-        del np.int  # type: ignore[attr-defined]
 
 
 def flat_fill(fill: Callable[[np.ndarray, np.ndarray], np.ndarray], noisy: Markers) -> np.ndarray:
@@ -693,7 +659,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--data-root",
         type=Path,
-        default=default_data_root(),
+        default=data_root(),
         help="shared data folder (default: $MOCAPNET_DATA or ../shared/data from the repo root)",
     )
     parser.add_argument("--quick", action="store_true", help="one file per group, two corruptions, one repeat")

@@ -10,7 +10,6 @@ the error per motion (like the EBF paper's Figures 5 and 9); it also writes one 
 
 from __future__ import annotations
 
-import subprocess
 import sys
 from pathlib import Path
 
@@ -23,6 +22,7 @@ ROOT = Path(__file__).resolve().parents[1]
 @hydra.main(version_base="1.3", config_path="../conf", config_name="evaluate")
 def main(cfg: DictConfig) -> None:
     from mocapnet.corpus import load_corpus
+    from mocapnet.evaluate.benchmark import git_commit
     from mocapnet.evaluate.harness import evaluate, is_c3d_data
     from mocapnet.evaluate.report import plot_per_motion, table, write_csv
 
@@ -34,12 +34,12 @@ def main(cfg: DictConfig) -> None:
     if not out.is_absolute():
         out = ROOT / out
     out.mkdir(parents=True, exist_ok=True)
-    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True)
+    commit = git_commit(short=True)
     overrides = " ".join(sys.argv[1:])
     lines = [
         "# mocapnet evaluation grid",
         "",
-        f"Command: `python scripts/evaluate_grid.py {overrides}` at commit {commit.stdout.strip() or '?'}.",
+        f"Command: `python scripts/evaluate_grid.py {overrides}` at commit {commit}.",
         f"Repeats: {cfg.repeats}; fold: {cfg.fold if cfg.fold is not None else 'all clips'}; "
         f"limit: {cfg.limit or 'none'}. Table entries are means over clips and repeats of each clip's error.",
         "",
