@@ -50,6 +50,7 @@ def _evaluate(args: argparse.Namespace) -> int:
         args.fold,
         args.limit,
         progress=not args.quiet,
+        style=args.style,
     )
     where = f"fold {ev.fold} test clips" if ev.fold is not None else "all clips"
     n_files = len({r["file"] for r in ev.rows})
@@ -166,6 +167,7 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--method", action="append", help="method (repeatable); default: noisy + Gaussians")
     ev.add_argument("--repeats", type=int, default=5, help="corrupted copies per clip (default 5)")
     ev.add_argument("--fold", type=int, default=None, help="score only this fold's test clips (0-4)")
+    ev.add_argument("--style", help="score only clips of this style label (Bandai names), e.g. elderly")
     ev.add_argument("--limit", type=int, default=None, help="use only the first N files (quick runs)")
     ev.add_argument("--csv", help="write one row per (method, corruption, file, repeat)")
     ev.add_argument("--markdown", help="write the summary table as markdown")

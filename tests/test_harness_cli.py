@@ -103,3 +103,11 @@ def test_help_has_examples(capsys):
         with pytest.raises(SystemExit):
             main([verb, "--help"])
         assert "examples:" in capsys.readouterr().out
+
+
+def test_style_filter(shared):
+    ev = evaluate("bandai1", "angular-0.5", ["gaussian-58ms"], repeats=1, progress=False, style="normal")
+    files = {r["file"] for r in ev.rows}
+    assert files and all("_normal_" in f for f in files)
+    with pytest.raises(ValueError, match="no clip of style 'nope'"):
+        evaluate("bandai1", "angular-0.5", ["gaussian-58ms"], repeats=1, progress=False, style="nope")

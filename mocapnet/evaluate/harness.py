@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mocapnet.corpus import Corpus, load_corpus
+from mocapnet.corpus import Corpus, load_corpus, style_label
 from mocapnet.corrupt import ANGLE_CORRUPTIONS, check_corruption, corrupt_markers, corrupt_motion, seed_for
 from mocapnet.evaluate import metrics
 from mocapnet.io.atomic import MocapFileError
@@ -247,12 +247,14 @@ def evaluate(
     limit: int | None = None,
     progress: bool = True,
     corpus: Corpus | None = None,
+    style: str | None = None,
 ) -> Evaluation:
     """Score ``methods`` on ``data`` under ``corruption`` (see module docstring).
 
     BVH: with ``fold`` the test clips of that fold are scored and methods may learn from its training
     folds; without it every clip is scored and trainable baselines use fold 0's training folds. The
-    reference baselines needed for ratios are added when missing.
+    reference baselines needed for ratios are added when missing. ``style`` keeps only the clips of that
+    style label (the unseen-style check: score a model trained with that style held out).
     """
     check_corruption(corruption)
     if is_c3d_data(data):
@@ -267,6 +269,10 @@ def evaluate(
     corpus = corpus or load_corpus(data, progress=progress, limit=limit)
     train, _, test = corpus.split(fold if fold is not None else 0)
     clips = test if fold is not None else corpus.motions
+    if style is not None:
+        clips = [m for m in clips if style_label(m.name) == style]
+        if not clips:
+            raise ValueError(f"{corpus.name}: no clip of style {style!r} among the clips to score")
     wanted = list(dict.fromkeys(list(methods) + list(reference_methods(corruption, "angles"))))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)

@@ -37,11 +37,17 @@ TRAIN_CORRUPTIONS = ("none", "angular-K", "uniform-K", "bias-const", "bias-sine"
 
 
 def corpus_splits(
-    corpus: str, fold: int, time_split: Sequence[float] = (0.7, 0.15), limit: int | None = None
+    corpus: str,
+    fold: int,
+    time_split: Sequence[float] = (0.7, 0.15),
+    limit: int | None = None,
+    holdout_style: str | None = None,
 ) -> tuple[list[Motion], list[Motion], list[Motion]]:
-    """``(train, val, test)`` lists of Motion for a corpus: its fold split, or the time split of its only
-    clip (``mocapnet.corpus.Corpus.split``)."""
-    return load_corpus(corpus, progress=False, limit=limit).split(fold, time_split=(time_split[0], time_split[1]))
+    """``(train, val, test)`` lists of Motion for a corpus: its fold split (without the clips of
+    ``holdout_style``, for the unseen-style check), or the time split of its only clip
+    (``mocapnet.corpus.Corpus.split``)."""
+    corpus_ = load_corpus(corpus, progress=False, limit=limit)
+    return corpus_.split(fold, holdout_style, (time_split[0], time_split[1]))
 
 
 def corrupt_window(
@@ -114,6 +120,7 @@ class MotionDataModule(L.LightningDataModule):
         val_limit: int | None = None,
         limit: int | None = None,
         seed: int = 0,
+        holdout_style: str | None = None,
     ) -> None:
         super().__init__()
         self.save_hyperparameters()
@@ -129,7 +136,7 @@ class MotionDataModule(L.LightningDataModule):
         if self.train_clips:
             return
         hp = self.hparams
-        train, val, _ = corpus_splits(hp.corpus, hp.fold, hp.time_split, hp.limit)
+        train, val, _ = corpus_splits(hp.corpus, hp.fold, hp.time_split, hp.limit, hp.holdout_style)
         if not train or not val:
             raise ValueError(f"corpus {hp.corpus!r} fold {hp.fold}: empty training or validation split")
         skeleton = train[0].skeleton
