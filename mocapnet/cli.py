@@ -216,7 +216,7 @@ def main(argv: list[str] | None = None) -> int:
         with warnings.catch_warnings():
             warnings.simplefilter("default")
             return args.func(args)
-    except (MocapFileError, FileNotFoundError, ValueError, KeyError) as exc:
+    except (MocapFileError, FileNotFoundError, ValueError, LookupError) as exc:
         msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else str(exc)
         print(f"mocapnet: error: {textwrap.shorten(str(msg), 2000)}", file=sys.stderr)
         return 2

@@ -111,3 +111,21 @@ def test_style_filter(shared):
     assert files and all("_normal_" in f for f in files)
     with pytest.raises(ValueError, match="no clip of style 'nope'"):
         evaluate("bandai1", "angular-0.5", ["gaussian-58ms"], repeats=1, progress=False, style="nope")
+
+
+def test_clean_refuses_skeleton_without_shipped_model(tmp_path, capsys):
+    from mocapnet.io import write_bvh
+    from mocapnet.motion import Motion, Skeleton
+
+    rot = ("Zrotation", "Xrotation", "Yrotation")
+    sk = Skeleton(
+        ("Hips", "Leg"),
+        (-1, 0),
+        np.array([[0, 0, 0], [0, -40.0, 0]]),
+        (("Xposition", "Yposition", "Zposition", *rot), rot),
+    )
+    write_bvh(tmp_path / "tiny.bvh", Motion(sk, np.zeros((10, 9)), 30.0))
+    assert main(["clean", str(tmp_path / "tiny.bvh"), "-o", str(tmp_path / "out.bvh")]) == 2
+    err = capsys.readouterr().err
+    assert "no shipped 'ebf' checkpoint for this skeleton, 2 joints" in err and "bandai2: 22 joints" in err
+    assert not (tmp_path / "out.bvh").exists()
