@@ -8,6 +8,7 @@ the truth (degrees), ``angvel [B, T, 3]`` the root angular velocity (rad/s).
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
 from typing import Any
 
 import lightning as L
@@ -17,7 +18,7 @@ import torch
 from mocapnet.nn.features import Normaliser
 
 
-class CleanerModule(L.LightningModule):
+class CleanerModule(L.LightningModule, ABC):
     """Base LightningModule. Subclasses set ``val_metric`` (the logged name), implement ``forward`` (sequence
     mode), ``windowed`` and ``loss_terms``."""
 
@@ -50,13 +51,13 @@ class CleanerModule(L.LightningModule):
         """Squared errors (degrees²) and the boolean selection ``[B, T, C]`` they are averaged over."""
         return (pred - batch["clean"]) ** 2, torch.ones_like(batch["mask"])
 
+    @abstractmethod
     def predict_batch(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
         """Sequence-mode output ``[B, T, C]`` (degrees) for a batch."""
-        raise NotImplementedError
 
+    @abstractmethod
     def windowed(self, filled: torch.Tensor, mask: torch.Tensor, angvel: torch.Tensor) -> torch.Tensor:
         """Windowed-mode output ``[T, C]`` for one clip (``filled``, ``mask`` ``[T, C]``, ``angvel [T, 3]``)."""
-        raise NotImplementedError
 
     def training_step(self, batch: dict[str, torch.Tensor], batch_idx: int) -> torch.Tensor:
         sq, sel = self.loss_terms(batch, self.predict_batch(batch))
