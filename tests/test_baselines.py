@@ -68,5 +68,9 @@ def test_parse_method_strings():
     assert parse_method("gaussian-58ms") == ("gaussian-58ms", {})
     assert parse_method("knn:k=8,levels=3,database=/a/b") == ("knn", {"k": 8, "levels": 3, "database": "/a/b"})
     assert parse_method("ebd+ebf=a.ckpt,b.ckpt") == ("ebd+ebf", {"checkpoints": ["a.ckpt", "b.ckpt"]})
+    assert parse_method("ebd+ebf=a.ckpt,b.ckpt:mode=windowed") == (
+        "ebd+ebf",
+        {"mode": "windowed", "checkpoints": ["a.ckpt", "b.ckpt"]},
+    )
     with pytest.raises(KeyError, match="unknown method 'nope'"):
         build_method("nope")

@@ -5,6 +5,7 @@
     --method ebd+ebf=ebd.ckpt,ebf.ckpt gap filling by EBD, then denoising by EBF
     --method ebf:mode=windowed         streaming-equivalent windowed mode (default: sequence)
     --method ebf:mode=windowed,checkpoints=run/best.ckpt   both
+    --method ebd+ebf=ebd.ckpt,ebf.ckpt:mode=windowed       both, with two checkpoints
 
 Gaps are filled by linear interpolation before any network (EBD then replaces the interpolated samples).
 Only the scored channels change. torch is imported when a method is built, never by ``import mocapnet``.

@@ -88,24 +88,32 @@ def _ensure_builtin() -> None:
     import mocapnet.methods.baselines  # noqa: F401  (registers the baselines)
 
 
+def _parse_options(text: str, rest: str) -> dict[str, Any]:
+    options: dict[str, Any] = {}
+    for item in filter(None, rest.split(",")):
+        key, eq, value = item.partition("=")
+        if not eq:
+            raise ValueError(f"method {text!r}: option {item!r} must be key=value")
+        try:
+            options[key.strip()] = ast.literal_eval(value.strip())
+        except (ValueError, SyntaxError):
+            options[key.strip()] = value.strip()
+    return options
+
+
 def parse_method(text: str) -> tuple[str, dict[str, Any]]:
-    """Split ``name:k=v,...`` or ``name=ckpt[,ckpt]`` into the name and an options dict."""
+    """Split ``name:k=v,...``, ``name=ckpt[,ckpt]`` or both (``name=ckpt[,ckpt]:k=v,...``) into the name and
+    an options dict (checkpoints under ``"checkpoints"``)."""
     text = text.strip()
     if ":" in text and ("=" not in text or text.index(":") < text.index("=")):
         name, _, rest = text.partition(":")
-        options: dict[str, Any] = {}
-        for item in filter(None, rest.split(",")):
-            key, eq, value = item.partition("=")
-            if not eq:
-                raise ValueError(f"method {text!r}: option {item!r} must be key=value")
-            try:
-                options[key.strip()] = ast.literal_eval(value.strip())
-            except (ValueError, SyntaxError):
-                options[key.strip()] = value.strip()
-        return name.strip(), options
+        return name.strip(), _parse_options(text, rest)
     if "=" in text:
-        name, _, paths = text.partition("=")
-        return name.strip(), {"checkpoints": [p.strip() for p in paths.split(",") if p.strip()]}
+        name, _, rest = text.partition("=")
+        paths, _, rest = rest.partition(":")
+        options = _parse_options(text, rest)
+        options["checkpoints"] = [p.strip() for p in paths.split(",") if p.strip()]
+        return name.strip(), options
     return text, {}
 
 
