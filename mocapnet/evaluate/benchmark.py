@@ -33,3 +33,37 @@ def numpy_int_alias() -> Iterator[None]:
             yield
     finally:
         del np.int  # type: ignore[attr-defined]
+
+
+def gapfill_rigid_body(points: np.ndarray, marker: int, cluster: list[int] | np.ndarray) -> np.ndarray:
+    """The PyPI ``gapfill`` rigid-body fill of ``points[:, marker]`` (``[T, M, 3]`` cm, NaN where missing)
+    from three cluster markers; returns the track ``[T, 3]`` (NaN where gapfill left it missing). Call it
+    inside ``numpy_int_alias()``."""
+    import gapfill
+
+    target = points[:, marker].copy()
+    gapfill.fill_marker_gap_rbt(target, points[:, list(cluster)].transpose(1, 0, 2).copy())
+    return target
+
+
+def gapfill_spline(points: np.ndarray, marker: int) -> np.ndarray:
+    """The PyPI ``gapfill`` spline fill of ``points[:, marker]``; returns the track ``[T, 3]``. Call it
+    inside ``numpy_int_alias()``."""
+    import gapfill
+
+    target = points[:, marker].copy()
+    gapfill.fill_marker_gap_interp(target)
+    return target
+
+
+def gapfill_spline_as_shipped() -> str:
+    """What ``gapfill.fill_marker_gap_interp`` does under this NumPy without the ``np.int`` alias."""
+    import gapfill
+
+    track = np.tile(np.arange(60.0)[:, None], (1, 3))
+    track[20:30] = np.nan
+    try:
+        gapfill.fill_marker_gap_interp(track)
+    except AttributeError as exc:
+        return f"AttributeError: {exc}".splitlines()[0]
+    return "runs without error"
