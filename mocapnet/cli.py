@@ -8,8 +8,6 @@ import textwrap
 import warnings
 from pathlib import Path
 
-import numpy as np
-
 EVALUATE_EXAMPLE = """\
 examples:
   mocapnet evaluate --data sample --corruption angular-0.5 --method gaussian-58ms --method gaussian-125ms
@@ -71,60 +69,11 @@ def _evaluate(args: argparse.Namespace) -> int:
     return 0
 
 
-def _read_mask(path: str, motion) -> np.ndarray:
-    mask = np.load(path).astype(bool)
-    sk = motion.skeleton
-    if mask.shape == (motion.n_frames, sk.n_joints):
-        from mocapnet.corrupt import joint_mask_to_channels
-
-        return joint_mask_to_channels(motion, mask)
-    if mask.shape != motion.channels.shape:
-        raise ValueError(
-            f"{path}: mask shape {mask.shape} fits neither [T, C] = {motion.channels.shape} "
-            f"nor [T, J] = {(motion.n_frames, sk.n_joints)}"
-        )
-    return mask
-
-
 def _clean(args: argparse.Namespace) -> int:
-    from mocapnet.io import read_bvh, read_c3d, write_bvh, write_c3d
-    from mocapnet.methods.registry import MethodContext, build_method
-    from mocapnet.motion import Markers
+    from mocapnet.clean import CleanOptions, clean_file
 
-    src = Path(args.input)
-    out = Path(args.output)
-    if out.resolve() == src.resolve():
-        raise ValueError(f"{out}: output path is the same as the input; choose another output file")
-    if src.suffix.lower() == ".c3d":
-        markers = read_c3d(src)
-        method = args.method or ("knn" if args.database else "pca")
-        if args.database and method.startswith("knn") and "database=" not in method:
-            method += (":" if ":" not in method else ",") + f"database={args.database}"
-        built = build_method(method, MethodContext(corruption="file gaps"), space="points")
-        usable = np.flatnonzero(markers.visible.any(axis=0))
-        filled = markers.points.copy()
-        n_missing = int((~markers.visible[:, usable]).sum())
-        if n_missing:
-            filled[:, usable] = built.clean(markers.select(usable))
-        result = Markers(filled, np.isfinite(filled).all(axis=2), markers.labels, markers.fps, markers.name)
-        write_c3d(out, result, inputs=(src,))
-        empty = markers.n_markers - usable.size
-        print(
-            f"{src} -> {out}: {method} filled {n_missing} missing samples in {usable.size} markers"
-            + (f"; {empty} markers with no data at all left empty" if empty else "")
-        )
-        return 0
-    motion = read_bvh(src)
-    mask = _read_mask(args.mask, motion) if args.mask else np.zeros(motion.channels.shape, dtype=bool)
-    method = args.method or ("ebd+ebf" if mask.any() else "ebf")
-    if args.model:
-        method = f"{method.split('=')[0]}={args.model}"
-    built = build_method(method, space="angles")
-    noisy = motion.channels.copy()
-    noisy[mask] = np.nan
-    cleaned = built.clean(motion.with_channels(noisy), mask)
-    write_bvh(out, motion.with_channels(cleaned), inputs=(src,))
-    print(f"{src} -> {out}: {method} on {motion.n_frames} frames ({int(mask.sum())} missing samples)")
+    options = CleanOptions(method=args.method, model=args.model, mask=args.mask, database=args.database)
+    print(clean_file(args.input, args.output, options).message)
     return 0
 
 

@@ -1,0 +1,153 @@
+"""Clean one file: read it, run a method, check, write the result. Used by ``mocapnet clean`` (one file or a
+folder) so a batch clean is the one-file clean, bit for bit."""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from mocapnet.io.atomic import MocapFileError
+
+BVH_SUFFIXES = (".bvh", ".bvh.gz")
+C3D_SUFFIXES = (".c3d",)
+
+
+@dataclass(frozen=True)
+class CleanOptions:
+    """What to do with each file; ``None`` picks the default for the file's format."""
+
+    method: str | None = None
+    model: str | None = None
+    mask: str | None = None
+    database: str | None = None
+
+
+@dataclass(frozen=True)
+class CleanResult:
+    """What one clean did: ``samples_filled`` counts missing samples given a value."""
+
+    source: Path
+    output: Path
+    method: str
+    frames: int
+    samples_filled: int
+    message: str
+
+
+def file_format(path: str | os.PathLike) -> str:
+    """``'bvh'`` or ``'c3d'`` from the file name (case-insensitive); ``MocapFileError`` for anything else."""
+    name = Path(path).name.lower()
+    if name.endswith(BVH_SUFFIXES):
+        return "bvh"
+    if name.endswith(C3D_SUFFIXES):
+        return "c3d"
+    raise MocapFileError(f"{path}: unknown file type (expected .bvh, .bvh.gz or .c3d)")
+
+
+def check_output_name(src: str | os.PathLike, out: str | os.PathLike) -> None:
+    """Refuse an output whose format (by extension, case-insensitive) differs from the input's or is missing."""
+    want = file_format(src)
+    try:
+        got = file_format(out)
+    except MocapFileError:
+        got = None
+    if got != want:
+        ext = ".bvh or .bvh.gz" if want == "bvh" else ".c3d"
+        raise MocapFileError(f"{out}: output name must end in {ext} for a {want.upper()} input {src}")
+    if Path(out).resolve() == Path(src).resolve():
+        raise MocapFileError(f"{out}: output path is the same as the input; choose another output file")
+
+
+def read_mask(path: str | os.PathLike, motion) -> np.ndarray:
+    """Read a missing-sample mask for ``motion``: ``.npy`` of bool or 0/1 integers, ``[T, C]`` or ``[T, J]``.
+
+    Returns a bool ``[T, C]`` mask (True = missing). Anything else (floats, NaN, strings, objects, an empty
+    array, a pickle, an ``.npz`` archive) raises ``MocapFileError`` naming the file.
+    """
+    try:
+        raw = np.load(path, allow_pickle=False)
+    except (OSError, ValueError, EOFError) as exc:
+        raise MocapFileError(f"{path}: not a NumPy .npy mask ({exc})") from exc
+    if isinstance(raw, np.lib.npyio.NpzFile):
+        raw.close()
+        raise MocapFileError(f"{path}: an .npz archive; save the mask with np.save as a single .npy array")
+    if raw.size == 0:
+        raise MocapFileError(f"{path}: the mask is empty (shape {raw.shape})")
+    if raw.dtype == bool:
+        mask = raw
+    elif np.issubdtype(raw.dtype, np.integer) and np.isin(raw, (0, 1)).all():
+        mask = raw.astype(bool)
+    else:
+        raise MocapFileError(f"{path}: mask must hold bool or 0/1 integers (True/1 = missing), got dtype {raw.dtype}")
+    sk = motion.skeleton
+    if mask.shape == (motion.n_frames, sk.n_joints):
+        from mocapnet.corrupt import joint_mask_to_channels
+
+        return joint_mask_to_channels(motion, mask)
+    if mask.shape != motion.channels.shape:
+        raise MocapFileError(
+            f"{path}: mask shape {mask.shape} fits neither [T, C] = {motion.channels.shape} "
+            f"nor [T, J] = {(motion.n_frames, sk.n_joints)}"
+        )
+    return mask
+
+
+def clean_bvh_file(src: Path, out: Path, options: CleanOptions) -> CleanResult:
+    """Denoise (and with a mask, fill) a BVH file with a joint-angle method and write the result."""
+    from mocapnet.io import read_bvh, write_bvh
+    from mocapnet.methods.registry import build_method
+
+    motion = read_bvh(src)
+    mask = read_mask(options.mask, motion) if options.mask else np.zeros(motion.channels.shape, dtype=bool)
+    method = options.method or ("ebd+ebf" if mask.any() else "ebf")
+    if options.model:
+        method = f"{method.split('=')[0]}={options.model}"
+    built = build_method(method, space="angles")
+    noisy = motion.channels.copy()
+    noisy[mask] = np.nan
+    cleaned = built.clean(motion.with_channels(noisy), mask)
+    write_bvh(out, motion.with_channels(cleaned), inputs=(src,))
+    n_missing = int(mask.sum())
+    return CleanResult(
+        src, out, method, motion.n_frames, n_missing,
+        f"{src} -> {out}: {method} on {motion.n_frames} frames ({n_missing} missing samples)",
+    )  # fmt: skip
+
+
+def clean_c3d_file(src: Path, out: Path, options: CleanOptions) -> CleanResult:
+    """Fill the gaps of a C3D file's markers and write the result."""
+    from mocapnet.io import read_c3d, write_c3d
+    from mocapnet.methods.registry import MethodContext, build_method
+    from mocapnet.motion import Markers
+
+    markers = read_c3d(src)
+    method = options.method or ("knn" if options.database else "pca")
+    if options.database and method.startswith("knn") and "database=" not in method:
+        method += (":" if ":" not in method else ",") + f"database={options.database}"
+    built = build_method(method, MethodContext(corruption="file gaps"), space="points")
+    usable = np.flatnonzero(markers.visible.any(axis=0))
+    filled = markers.points.copy()
+    n_missing = int((~markers.visible[:, usable]).sum())
+    if n_missing:
+        filled[:, usable] = built.clean(markers.select(usable))
+    result = Markers(filled, np.isfinite(filled).all(axis=2), markers.labels, markers.fps, markers.name)
+    write_c3d(out, result, inputs=(src,))
+    empty = markers.n_markers - usable.size
+    n_filled = int((result.visible & ~markers.visible).sum())
+    return CleanResult(
+        src, out, method, markers.n_frames, n_filled,
+        f"{src} -> {out}: {method} filled {n_filled} of {n_missing} missing samples in {usable.size} markers"
+        + (f"; {empty} markers with no data at all left empty" if empty else ""),
+    )  # fmt: skip
+
+
+def clean_file(src: str | os.PathLike, out: str | os.PathLike, options: CleanOptions) -> CleanResult:
+    """Clean one BVH or C3D file into ``out`` (same format; written atomically, never over ``src``)."""
+    src, out = Path(src), Path(out)
+    check_output_name(src, out)
+    if file_format(src) == "c3d":
+        return clean_c3d_file(src, out, options)
+    return clean_bvh_file(src, out, options)
