@@ -4,7 +4,7 @@ folder) so a batch clean is the one-file clean, bit for bit."""
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -27,7 +27,8 @@ class CleanOptions:
 
 @dataclass(frozen=True)
 class CleanResult:
-    """What one clean did: ``samples_filled`` counts missing samples given a value."""
+    """What one clean did: ``samples_filled`` counts missing samples given a value; ``details`` holds
+    method-specific JSON-able facts (e.g. a per-gap report under ``"gaps"``)."""
 
     source: Path
     output: Path
@@ -35,6 +36,7 @@ class CleanResult:
     frames: int
     samples_filled: int
     message: str
+    details: dict = field(default_factory=dict)
 
 
 def file_format(path: str | os.PathLike) -> str:
