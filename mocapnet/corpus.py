@@ -7,10 +7,8 @@ CMU clip shipped inside the package; any other string is a folder. The data root
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
-import pickle
 import re
 import warnings
 from collections import Counter
@@ -21,13 +19,14 @@ import numpy as np
 
 from mocapnet.io.atomic import MocapFileError
 from mocapnet.io.bvh import read_bvh
-from mocapnet.motion import Motion
+from mocapnet.motion import Motion, Skeleton
+from mocapnet.safe_cache import CacheError, cache_dir, content_hash, read_cache, write_cache
 
 PACKAGE_DATA = Path(__file__).parent / "data"
 SPLITS_DIR = Path(__file__).parent / "splits"
 N_FOLDS = 5
 TIME_SPLIT = (0.7, 0.15)  # train and validation fractions of a single-clip corpus; the rest is test
-_CACHE_VERSION = 1
+_CACHE_VERSION = 2
 
 CORPORA = {
     "bandai2": ("bvh/bandai_namco_2", 1.0),
@@ -45,10 +44,6 @@ def data_root() -> Path:
     if beside_repo.exists():
         return beside_repo
     return Path.cwd().parent / "shared" / "data"
-
-
-def cache_dir() -> Path:
-    return Path(os.environ.get("MOCAPNET_CACHE", Path.home() / ".cache" / "mocapnet"))
 
 
 def resolve(data: str | os.PathLike) -> tuple[str, Path, float | None]:
@@ -194,11 +189,58 @@ class Corpus:
 
 
 def _cache_key(files: list[Path], unit: float | None) -> str:
-    h = hashlib.sha256(f"v{_CACHE_VERSION}|{unit}".encode())
-    for f in files:
-        st = f.stat()
-        h.update(f"{f.resolve()}|{st.st_size}|{st.st_mtime_ns}".encode())
-    return h.hexdigest()[:24]
+    """Content hash of the corpus files (every byte), the unit and the cache version."""
+    return content_hash(files, salt=f"v{_CACHE_VERSION}|{unit}")
+
+
+def _pack(motions: list[Motion], skipped: list[tuple[str, str]], key: str) -> tuple[dict, dict]:
+    """Arrays and JSON header of a parsed corpus (all motions share one topology)."""
+    sk = motions[0].skeleton
+    arrays = {
+        "channels": np.concatenate([m.channels for m in motions]),
+        "lengths": np.array([m.n_frames for m in motions], dtype=np.int64),
+        "offsets": np.stack([m.skeleton.offsets for m in motions]),
+        "end_sites": np.stack([np.asarray(m.skeleton.end_sites, dtype=np.float64).reshape(-1, 3) for m in motions]),
+        "cm_per_unit": np.array([m.skeleton.cm_per_unit for m in motions], dtype=np.float64),
+        "fps": np.array([m.fps for m in motions], dtype=np.float64),
+    }
+    meta = {
+        "key": key,
+        "names": [m.name for m in motions],
+        "joints": list(sk.names),
+        "parents": list(sk.parents),
+        "joint_channels": [list(c) for c in sk.channels],
+        "end_parents": list(sk.end_parents),
+        "skipped": [list(s) for s in skipped],
+    }
+    return arrays, meta
+
+
+def _unpack(arrays: dict, meta: dict, key: str) -> tuple[list[Motion], list[tuple[str, str]]]:
+    """Inverse of ``_pack``; ``CacheError`` when the entry belongs to other files or is inconsistent."""
+    if meta.get("key") != key:
+        raise CacheError("cache key does not match the corpus files")
+    try:
+        bounds = np.concatenate([[0], np.cumsum(arrays["lengths"])])
+        if bounds[-1] != len(arrays["channels"]) or len(meta["names"]) != len(arrays["lengths"]):
+            raise CacheError("cache arrays are inconsistent")
+        topology = (tuple(meta["joints"]), tuple(meta["parents"]), tuple(tuple(c) for c in meta["joint_channels"]))
+        motions = []
+        for i, name in enumerate(meta["names"]):
+            sk = Skeleton(
+                names=topology[0],
+                parents=topology[1],
+                offsets=arrays["offsets"][i],
+                channels=topology[2],
+                end_sites=arrays["end_sites"][i],
+                end_parents=tuple(meta["end_parents"]),
+                cm_per_unit=float(arrays["cm_per_unit"][i]),
+            )
+            chans = arrays["channels"][bounds[i] : bounds[i + 1]]
+            motions.append(Motion(sk, chans, float(arrays["fps"][i]), name))
+        return motions, [(str(a), str(b)) for a, b in meta["skipped"]]
+    except (KeyError, IndexError, TypeError, ValueError) as exc:
+        raise CacheError(f"cache entry is inconsistent ({type(exc).__name__}: {str(exc)[:80]})") from exc
 
 
 def _parse_all(files: list[Path], unit: float | None, progress: bool) -> tuple[list[Motion], list[tuple[str, str]]]:
@@ -234,29 +276,26 @@ def load_corpus(
 
     Files that fail to parse, or whose skeleton topology differs from the corpus majority, are skipped and
     reported with a warning (never mixed in). Parsed corpora are cached under ``$MOCAPNET_CACHE`` (default
-    ``~/.cache/mocapnet``), keyed by file paths, sizes and modification times. ``limit`` keeps the first N
-    files by name (for quick runs).
+    ``~/.cache/mocapnet``) as ``.npz`` (no pickle), keyed by a SHA-256 of the files' content and checked by a
+    checksum; a damaged or edited cache entry is rebuilt with a warning. ``limit`` keeps the first N files by
+    name (for quick runs).
     """
     name, folder, unit = resolve(data)
     files = list_bvh(folder)
     if limit is not None:
         files = files[:limit]
-    cache_file = cache_dir() / f"{name}-{_cache_key(files, unit)}.pkl"
+    key = _cache_key(files, unit) if use_cache else ""
+    cache_file = cache_dir() / f"{name}-{key[:24]}.npz"
     loaded = None
     if use_cache and cache_file.exists():
         try:
-            with open(cache_file, "rb") as fh:
-                loaded = pickle.load(fh)
-        except (OSError, pickle.UnpicklingError, EOFError):
-            loaded = None
+            loaded = _unpack(*read_cache(cache_file), key)
+        except CacheError as exc:
+            warnings.warn(f"{exc}; rebuilding the parse cache of {name}", stacklevel=2)
     if loaded is None:
         loaded = _parse_all(files, unit, progress)
         if use_cache:
-            cache_file.parent.mkdir(parents=True, exist_ok=True)
-            tmp = cache_file.with_suffix(f".tmp{os.getpid()}")
-            with open(tmp, "wb") as fh:
-                pickle.dump(loaded, fh, protocol=pickle.HIGHEST_PROTOCOL)
-            os.replace(tmp, cache_file)
+            write_cache(cache_file, *_pack(*loaded, key))
     motions, skipped = loaded
     for fname, reason in skipped:
         warnings.warn(f"skipped {fname}: {reason}", stacklevel=2)
