@@ -165,10 +165,23 @@ def main(argv: list[str] | None = None) -> int:
         with warnings.catch_warnings():
             warnings.simplefilter("default")
             return args.func(args)
-    except (MocapFileError, FileNotFoundError, ValueError, LookupError) as exc:
-        msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else str(exc)
-        print(f"mocapnet: error: {textwrap.shorten(str(msg), 2000)}", file=sys.stderr)
+    except (MocapFileError, OSError, ValueError, LookupError, OverflowError, RecursionError) as exc:
+        print(f"mocapnet: error: {error_line(exc)}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        print("mocapnet: interrupted; nothing was written for the file in progress", file=sys.stderr)
+        return 130
+
+
+def error_line(exc: BaseException) -> str:
+    """One line, at most ~300 characters, naming the file where the exception knows it."""
+    if isinstance(exc, OSError) and exc.filename is not None:
+        msg = f"{exc.filename}: {exc.strerror or type(exc).__name__}"
+    elif isinstance(exc, KeyError) and exc.args:
+        msg = str(exc.args[0])
+    else:
+        msg = str(exc) or type(exc).__name__
+    return textwrap.shorten(msg[:2000], 300, placeholder=" …")
 
 
 if __name__ == "__main__":

@@ -1,0 +1,112 @@
+"""One-file cleaning: masks are bool or 0/1 only, output names follow the input's format, errors are one line."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from mocapnet.clean import CleanOptions, check_output_name, clean_file, read_mask
+from mocapnet.cli import main
+from mocapnet.io.atomic import MocapFileError
+from mocapnet.io.bvh import format_bvh
+
+
+@pytest.fixture()
+def short_bvh(tmp_path, cmu):
+    path = tmp_path / "walk.bvh"
+    path.write_text(format_bvh(cmu.with_channels(cmu.channels[:60])))
+    return path
+
+
+@pytest.fixture()
+def short_motion(cmu):
+    return cmu.with_channels(cmu.channels[:60])
+
+
+@pytest.mark.parametrize(
+    "values",
+    [
+        np.full((60, 3), 0.5),
+        np.array([[np.nan]]),
+        np.array(["yes", "no"]),
+        np.array([0, 1, 2]),
+        np.zeros((0, 93), dtype=bool),
+        np.zeros((60, 93), dtype=np.float32),
+    ],
+    ids=["half", "nan", "strings", "int-2", "empty", "float-zeros"],
+)
+def test_mask_of_anything_but_bool_or_01_is_refused(tmp_path, short_motion, values):
+    path = tmp_path / "mask.npy"
+    np.save(path, values)
+    with pytest.raises(MocapFileError, match="mask"):
+        read_mask(path, short_motion)
+
+
+def test_pickled_and_npz_masks_are_refused(tmp_path, short_motion):
+    pickled = tmp_path / "obj.npy"
+    np.save(pickled, np.array([{"a": 1}], dtype=object), allow_pickle=True)
+    with pytest.raises(MocapFileError, match="obj.npy"):
+        read_mask(pickled, short_motion)
+    archive = tmp_path / "m.npz"
+    np.savez(archive, mask=np.zeros(short_motion.channels.shape, dtype=bool))
+    with pytest.raises(MocapFileError, match="npz archive"):
+        read_mask(archive, short_motion)
+    not_numpy = tmp_path / "m.npy"
+    not_numpy.write_text("True False")
+    with pytest.raises(MocapFileError, match="not a NumPy"):
+        read_mask(not_numpy, short_motion)
+
+
+def test_bool_and_01_masks_in_both_shapes(tmp_path, short_motion):
+    sk = short_motion.skeleton
+    per_channel = np.zeros(short_motion.channels.shape, dtype=np.int8)
+    per_channel[10:20, 5] = 1
+    np.save(tmp_path / "c.npy", per_channel)
+    got = read_mask(tmp_path / "c.npy", short_motion)
+    assert got.dtype == bool and got.sum() == 10
+    per_joint = np.zeros((short_motion.n_frames, sk.n_joints), dtype=bool)
+    per_joint[5:9, 2] = True
+    np.save(tmp_path / "j.npy", per_joint)
+    got = read_mask(tmp_path / "j.npy", short_motion)
+    assert got.sum() == 4 * len(sk.channels[2])
+    np.save(tmp_path / "bad.npy", np.zeros((7, 7), dtype=bool))
+    with pytest.raises(MocapFileError, match="fits neither"):
+        read_mask(tmp_path / "bad.npy", short_motion)
+
+
+@pytest.mark.parametrize("name", ["out", "out.c3d", "out.bvh.txt", ""])
+def test_output_name_must_match_the_input_format(tmp_path, short_bvh, name):
+    out = tmp_path / name if name else ""
+    with pytest.raises(MocapFileError, match="output name must end in"):
+        check_output_name(short_bvh, out)
+
+
+def test_output_case_insensitive_and_never_the_input(tmp_path, short_bvh):
+    check_output_name(short_bvh, tmp_path / "OUT.BVH")
+    check_output_name(tmp_path / "take.C3D", tmp_path / "out.c3d")
+    with pytest.raises(MocapFileError, match="same as the input"):
+        check_output_name(short_bvh, short_bvh)
+
+
+def test_clean_file_with_a_mask_fills_only_masked_samples(tmp_path, short_bvh, short_motion):
+    mask = np.zeros(short_motion.channels.shape, dtype=bool)
+    mask[20:30, 10] = True
+    np.save(tmp_path / "mask.npy", mask)
+    result = clean_file(short_bvh, tmp_path / "out.bvh", CleanOptions(method="lerp", mask=str(tmp_path / "mask.npy")))
+    assert result.samples_filled == 10 and result.frames == 60 and (tmp_path / "out.bvh").exists()
+
+
+def test_cli_errors_are_one_line_exit_2_and_write_nothing(tmp_path, short_bvh, capsys):
+    bad_mask = tmp_path / "mask.npy"
+    np.save(bad_mask, np.full((60, 93), 0.5))
+    cases = [
+        ["clean", str(short_bvh), "-o", str(tmp_path / "out.bvh"), "--method", "lerp", "--mask", str(bad_mask)],
+        ["clean", str(short_bvh), "-o", str(tmp_path / "out"), "--method", "lerp"],
+        ["clean", str(tmp_path / "missing.bvh"), "-o", str(tmp_path / "out.bvh")],
+        ["clean", str(short_bvh), "-o", str(tmp_path / "x.c3d"), "--method", "lerp"],
+    ]
+    for argv in cases:
+        assert main(argv) == 2, argv
+        err = capsys.readouterr().err.strip()
+        assert err.startswith("mocapnet: error:") and "\n" not in err, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["mask.npy", "walk.bvh"]
