@@ -70,10 +70,13 @@ def resolve(data: str | os.PathLike) -> tuple[str, Path, float | None]:
 
 
 def list_bvh(folder: Path) -> list[Path]:
-    """BVH files of a folder (``.bvh`` and ``.bvh.gz``), sorted by name; a single file is its own list."""
+    """BVH files of a folder (``.bvh`` and ``.bvh.gz``, case-insensitive), sorted by name; a single file is its
+    own list. Hidden files (``.name``: temporary outputs of an interrupted write) are not corpus files."""
     if folder.is_file():
         return [folder]
-    files = sorted(p for p in folder.iterdir() if p.name.endswith((".bvh", ".bvh.gz")))
+    files = sorted(
+        p for p in folder.iterdir() if p.name.lower().endswith((".bvh", ".bvh.gz")) and not p.name.startswith(".")
+    )
     if not files:
         raise FileNotFoundError(f"{folder}: no .bvh or .bvh.gz files")
     return files

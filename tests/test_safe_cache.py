@@ -118,3 +118,9 @@ def test_unwritable_cache_only_warns(corpus_folder, tmp_path, monkeypatch):
     with pytest.warns(UserWarning, match="cannot write the cache"):
         corpus = load_corpus(corpus_folder, progress=False)
     assert len(corpus.motions) == 3
+
+
+def test_hidden_partial_outputs_are_not_corpus_files(corpus_folder):
+    (corpus_folder / ".walk_9.bvh.x1y2.partial.bvh").write_text("HIERARCHY\nROOT")
+    corpus = load_corpus(corpus_folder, progress=False, use_cache=False)
+    assert [m.name for m in corpus.motions] == ["walk_0", "walk_1", "walk_2"] and not corpus.skipped
