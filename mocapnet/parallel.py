@@ -1,0 +1,163 @@
+"""Run many independent tasks (files to clean, clips to score) on Dask, or in this process.
+
+By default the tasks run on a ``dask.distributed.LocalCluster`` of worker *processes* on this machine, one
+per core, one thread each (``mocapnet.threads`` pins torch and BLAS in every worker). With a scheduler
+address (``tcp://HOST:PORT``) the same tasks run on an existing Dask cluster — e.g. one that
+``dask-jobqueue`` started on SLURM or PBS; its workers must have mocapnet installed and see the same file
+paths (a shared file system). ``workers=0`` runs everything here, one task after the other.
+
+Results come back in the order of the inputs, so a parallel run returns what the serial one returns.
+``distributed`` is imported only when a cluster is used.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass
+from typing import Any
+
+from mocapnet.threads import pin_threads
+
+JOBQUEUE_HELP = """\
+a cluster on SLURM or PBS (dask-jobqueue, pip install dask-jobqueue), started from a Python prompt on the
+login node, then given to mocapnet by address:
+  from dask_jobqueue import SLURMCluster        # or PBSCluster
+  cluster = SLURMCluster(cores=1, processes=1, memory="4GB", walltime="02:00:00",
+                         job_script_prologue=["source /path/to/mocapnet/.venv/bin/activate"])
+  cluster.scale(jobs=32)                        # 32 single-core workers
+  print(cluster.scheduler_address)              # tcp://10.0.0.5:8786 -> --scheduler tcp://10.0.0.5:8786
+or by hand: `dask scheduler` on one node, `dask worker tcp://HOST:8786 --nworkers N --nthreads 1` on others.
+Workers need mocapnet installed and the same paths (shared file system)."""
+
+
+def local_cores() -> int:
+    """Cores this process may run on."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        return os.cpu_count() or 1
+
+
+@dataclass(frozen=True)
+class Parallel:
+    """Where tasks run: an existing Dask cluster at ``scheduler`` (``tcp://HOST:PORT``), else a local cluster
+    of ``workers`` processes (``None`` = one per core; ``0`` = in this process, no Dask). ``threads``: torch
+    and BLAS threads per worker process (``None`` = ``mocapnet.threads.default_threads()``, i.e. 1)."""
+
+    scheduler: str | None = None
+    workers: int | None = None
+    threads: int | None = None
+
+    def __post_init__(self) -> None:
+        if self.workers is not None and self.workers < 0:
+            raise ValueError(f"workers must be 0 (this process) or more, got {self.workers}")
+        if self.scheduler is not None and self.workers is not None:
+            raise ValueError("give either a scheduler address or a number of local workers, not both")
+
+    @property
+    def in_process(self) -> bool:
+        return self.scheduler is None and self.workers == 0
+
+    def describe(self) -> str:
+        if self.scheduler:
+            return f"Dask cluster {self.scheduler}"
+        if self.in_process:
+            return "one process (no Dask)"
+        return f"{self.workers or local_cores()} local worker processes"
+
+
+def _run_pinned(item: Any, fn: Callable[..., Any], threads: int, *shared: Any) -> Any:
+    """Run one task on a worker after pinning its threads (a no-op once pinned; covers late-joining workers)."""
+    pin_threads(threads)
+    return fn(item, *shared)
+
+
+@contextmanager
+def dask_client(parallel: Parallel) -> Iterator[Any]:
+    """A ``distributed.Client`` for ``parallel`` (starts and stops a LocalCluster unless a scheduler is given).
+
+    Raises ValueError when the scheduler cannot be reached. Tasks pin their worker's threads themselves.
+    """
+    from distributed import Client, LocalCluster
+
+    cluster = None
+    if parallel.scheduler:
+        try:
+            client = Client(parallel.scheduler, timeout="20s")
+        except (OSError, TimeoutError) as exc:
+            raise ValueError(f"cannot reach the Dask scheduler {parallel.scheduler}: {exc}") from exc
+    else:
+        cluster = LocalCluster(
+            n_workers=parallel.workers or local_cores(),
+            threads_per_worker=1,
+            processes=True,
+            dashboard_address=None,
+            silence_logs=logging.ERROR,
+        )
+        client = Client(cluster)
+    try:
+        yield client
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+
+
+def imap_tasks(
+    fn: Callable[..., Any],
+    items: Sequence[Any],
+    shared: Sequence[Any] = (),
+    parallel: Parallel | None = None,
+    progress: bool = False,
+    desc: str = "",
+    unit: str = "task",
+) -> Iterator[tuple[int, Any]]:
+    """Yield ``(i, fn(items[i], *shared))`` as tasks finish (any order), with a tqdm progress bar.
+
+    ``fn`` must be a module-level function (workers import it by name); ``shared`` objects are sent to each
+    worker once. An exception raised by a task is raised here.
+    """
+    from tqdm import tqdm
+
+    parallel = parallel or Parallel()
+    bar = tqdm(total=len(items), desc=desc, unit=unit, disable=not progress)
+    try:
+        if parallel.in_process or not items:
+            pin_threads(parallel.threads)
+            for i, item in enumerate(items):
+                yield i, fn(item, *shared)
+                bar.update()
+            return
+        from distributed import as_completed
+
+        with dask_client(parallel) as client:
+            sent = [client.scatter([obj], broadcast=True, hash=False)[0] for obj in shared]
+            threads = pin_threads(parallel.threads)
+            futures = [client.submit(_run_pinned, item, fn, threads, *sent, pure=False) for item in items]
+            index = {f.key: i for i, f in enumerate(futures)}
+            for future in as_completed(futures):
+                i = index[future.key]
+                yield i, future.result()
+                futures[i] = None  # let the worker forget the result
+                bar.update()
+    finally:
+        bar.close()
+
+
+def map_tasks(
+    fn: Callable[..., Any],
+    items: Sequence[Any],
+    shared: Sequence[Any] = (),
+    parallel: Parallel | None = None,
+    progress: bool = False,
+    desc: str = "",
+    unit: str = "task",
+) -> list[Any]:
+    """``[fn(item, *shared) for item in items]`` run as ``imap_tasks`` does, in the order of ``items``."""
+    results: list[Any] = [None] * len(items)
+    for i, value in imap_tasks(fn, items, shared, parallel, progress, desc, unit):
+        results[i] = value
+    return results
