@@ -6,6 +6,11 @@ the frame rate, the validation score and the command that trained it. Shipped fi
 checkpoints (weights, hyper-parameters, normaliser; no optimiser state), still loadable with
 ``EBF.load_from_checkpoint``.
 
+Checkpoints are data, never code: every load goes through ``read_checkpoint``, which uses
+``torch.load(weights_only=True)`` (tensors, numbers, strings, lists, dicts and nothing else: PyTorch's
+restricted unpickler, extended by no global) and refuses anything else with ``MocapFileError``. A shipped
+checkpoint is also checked against the SHA-256 recorded for it in ``index.json``.
+
 Export a trained run::
 
     python -m mocapnet.nn.checkpoints RUN/checkpoints/best.ckpt bandai2_ebf --command "python scripts/train.py ..."
@@ -14,13 +19,18 @@ Export a trained run::
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
+import pickle
+import re
+import zipfile
 from os import PathLike
 from pathlib import Path
 from typing import Any
 
 import torch
 
+from mocapnet.io.atomic import MocapFileError
 from mocapnet.motion import Skeleton
 from mocapnet.nn.features import topology_hash
 
@@ -35,6 +45,59 @@ _KEEP = (
     "epoch",
     "global_step",
 )
+
+
+def sha256_of(path: str | PathLike) -> str:
+    """Hex SHA-256 of a file's bytes."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def _shipped_entry(path: Path) -> dict[str, Any] | None:
+    """The index entry of ``path`` when it is a file in ``CHECKPOINT_DIR``, else None."""
+    if path.resolve().parent != CHECKPOINT_DIR:
+        return None
+    return next((e for e in read_index() if e["file"] == path.name), None)
+
+
+def read_checkpoint(path: str | PathLike) -> dict[str, Any]:
+    """Load a checkpoint file as data (``torch.load(weights_only=True)``, on the CPU) and return its dict.
+
+    Raises FileNotFoundError when there is no such file, and MocapFileError naming the file when it is not
+    a readable PyTorch checkpoint (truncated, foreign format), when it needs any object beyond tensors and
+    plain values to load (such a file could run code: it is refused, nothing in it runs), when it is not a
+    dict, or when it is a shipped checkpoint whose SHA-256 differs from the one in ``index.json``.
+    """
+    src = Path(path)
+    if not src.is_file():
+        raise FileNotFoundError(f"checkpoint {src} not found")
+    entry = _shipped_entry(src)
+    if entry is not None and entry.get("sha256") and sha256_of(src) != entry["sha256"]:
+        raise MocapFileError(
+            f"{src}: SHA-256 differs from the one recorded in {INDEX.name}; the shipped checkpoint was changed "
+            "or damaged (reinstall mocapnet)"
+        )
+    try:
+        ckpt = torch.load(src, map_location="cpu", weights_only=True)
+    except pickle.UnpicklingError as exc:
+        inner = str(exc.__context__ or exc)
+        found = re.search(r"GLOBAL (\S+)", inner)
+        if found is None:
+            reason = (inner.strip().splitlines() or [type(exc).__name__])[0][:200]
+            raise MocapFileError(f"{src}: not a readable PyTorch checkpoint (truncated or foreign: {reason})") from None
+        raise MocapFileError(
+            f"{src}: refused: loading it would call {found.group(1)[:80]}, which is not a tensor or plain value; "
+            "mocapnet loads checkpoints as data only (torch.load weights_only=True), so nothing in it was run"
+        ) from None
+    except (RuntimeError, EOFError, OSError, zipfile.BadZipFile, ValueError, KeyError) as exc:
+        reason = (str(exc).strip().splitlines() or [type(exc).__name__])[0][:200]
+        raise MocapFileError(f"{src}: not a readable PyTorch checkpoint (truncated or foreign: {reason})") from None
+    if not isinstance(ckpt, dict):
+        raise MocapFileError(f"{src}: not a mocapnet checkpoint (holds a {type(ckpt).__name__}, not a dict)")
+    return ckpt
 
 
 def method_of(checkpoint: dict[str, Any]) -> str:
@@ -66,12 +129,20 @@ def shipped_checkpoint(method: str, skeleton: Skeleton) -> Path:
     )
 
 
-def export(src: str | PathLike, name: str, command: str = "", metrics: dict[str, float] | None = None) -> Path:
+def export(
+    src: str | PathLike,
+    name: str,
+    command: str = "",
+    metrics: dict[str, float] | None = None,
+    recipe: str = "",
+    budget: str = "",
+) -> Path:
     """Slim ``src`` into ``mocapnet/checkpoints/<name>.ckpt`` and record it in ``index.json`` (replacing an
-    entry of the same file name)."""
+    entry of the same file name) with its SHA-256, ``recipe`` (how it was trained, in words) and ``budget``
+    (wall-clock training time)."""
     from mocapnet.corpus import load_corpus
 
-    ckpt = torch.load(src, map_location="cpu", weights_only=False)
+    ckpt = read_checkpoint(src)
     slim = {k: ckpt[k] for k in _KEEP if k in ckpt}
     hp = slim["hyper_parameters"]
     skeleton = load_corpus(hp["corpus"], progress=False).motions[0].skeleton
@@ -95,7 +166,11 @@ def export(src: str | PathLike, name: str, command: str = "", metrics: dict[str,
         "global_step": slim.get("global_step"),
         "val_metric": "val/gap_err_deg" if slim["mocapnet_model"] == "EBD" else "val/angle_err_deg",
         "val_score": None if score is None else round(float(score), 4),
+        "epochs": None if slim.get("epoch") is None else int(slim["epoch"]) + 1,
         "bytes": dst.stat().st_size,
+        "sha256": sha256_of(dst),
+        "recipe": recipe,
+        "budget": budget,
         "command": command,
         **(metrics or {}),
     }
@@ -109,8 +184,10 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("checkpoint", help="training checkpoint, e.g. runs/bandai2_ebf/checkpoints/best.ckpt")
     parser.add_argument("name", help="file name without .ckpt, e.g. bandai2_ebf")
     parser.add_argument("--command", default="", help="the training command, recorded in index.json")
+    parser.add_argument("--recipe", default="", help="how it was trained, in words, recorded in index.json")
+    parser.add_argument("--budget", default="", help="wall-clock training budget, e.g. '70 min on 1 CPU thread'")
     args = parser.parse_args(argv)
-    print(export(args.checkpoint, args.name, args.command))
+    print(export(args.checkpoint, args.name, args.command, recipe=args.recipe, budget=args.budget))
 
 
 if __name__ == "__main__":

@@ -18,9 +18,11 @@ from os import PathLike
 import numpy as np
 import torch
 
+from mocapnet.io.atomic import MocapFileError
 from mocapnet.methods.baselines import lerp_fill
 from mocapnet.motion import Skeleton
 from mocapnet.nn.base import CleanerModule
+from mocapnet.nn.checkpoints import read_checkpoint
 from mocapnet.nn.ebd import EBD
 from mocapnet.nn.ebf import EBF
 from mocapnet.nn.features import (
@@ -39,13 +41,18 @@ MODEL_CLASSES: dict[str, type[CleanerModule]] = {"EBF": EBF, "EBD": EBD, "Window
 
 def load_model(path: str | PathLike) -> CleanerModule:
     """Load a checkpoint written by ``mocapnet.nn.train`` (or a shipped one) in eval mode on the CPU; the class
-    is read from the checkpoint."""
-    ckpt = torch.load(path, map_location="cpu", weights_only=False)
+    is read from the checkpoint. The file is read as data (``checkpoints.read_checkpoint``); MocapFileError
+    naming the file when it is not a mocapnet network checkpoint or its weights do not fit the network."""
+    ckpt = read_checkpoint(path)
     name = ckpt.get("mocapnet_model")
-    if name not in MODEL_CLASSES:
-        raise ValueError(f"{path}: not a mocapnet network checkpoint (model class {name!r})")
-    model = MODEL_CLASSES[name](**ckpt["hyper_parameters"])
-    model.load_state_dict(ckpt["state_dict"])
+    if name not in MODEL_CLASSES or not isinstance(ckpt.get("hyper_parameters"), dict):
+        raise MocapFileError(f"{path}: not a mocapnet network checkpoint (model class {name!r})")
+    try:
+        model = MODEL_CLASSES[name](**ckpt["hyper_parameters"])
+        model.load_state_dict(ckpt["state_dict"])
+    except (TypeError, KeyError, RuntimeError, ValueError) as exc:
+        reason = (str(exc).strip().splitlines() or [type(exc).__name__])[0][:200]
+        raise MocapFileError(f"{path}: {name} checkpoint does not fit the network: {reason}") from None
     torch.set_flush_denormal(True)
     return model.eval()
 

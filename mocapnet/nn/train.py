@@ -18,7 +18,9 @@ import torch
 from lightning.pytorch.callbacks import LearningRateMonitor, ModelCheckpoint
 from omegaconf import DictConfig, OmegaConf
 
+from mocapnet.io.atomic import MocapFileError
 from mocapnet.nn.base import CleanerModule
+from mocapnet.nn.checkpoints import read_checkpoint
 from mocapnet.nn.data import MotionDataModule
 
 
@@ -28,6 +30,22 @@ def configure_torch(threads: int | None) -> None:
     if threads:
         torch.set_num_threads(int(threads))
     torch.set_flush_denormal(True)
+
+
+def resume_path(ckpt_path: str | None, ckpt_dir: Path) -> str | None:
+    """The checkpoint a run resumes from: ``"last"`` → ``ckpt_dir/last.ckpt`` when it exists (else a fresh
+    start), a path → that file, None → a fresh start. The file is read once as data first
+    (``checkpoints.read_checkpoint``: FileNotFoundError, or MocapFileError naming it when it is truncated,
+    foreign or would need code to load); Lightning then loads it with ``weights_only=True`` too."""
+    if ckpt_path is None:
+        return None
+    path = ckpt_dir / "last.ckpt" if ckpt_path == "last" else Path(ckpt_path)
+    if ckpt_path == "last" and not path.exists():
+        return None
+    ckpt = read_checkpoint(path)
+    if "loops" not in ckpt or "state_dict" not in ckpt:
+        raise MocapFileError(f"{path}: not a training checkpoint to resume from (no loop state); start afresh")
+    return str(path)
 
 
 def build(cfg: DictConfig) -> tuple[MotionDataModule, CleanerModule]:
@@ -62,10 +80,8 @@ def train(cfg: DictConfig) -> Path:
     callbacks = [best, LearningRateMonitor()] if cfg.get("logger") else [best]
     logger = hydra.utils.instantiate(cfg.logger, save_dir=str(run_dir)) if cfg.get("logger") else False
     trainer = L.Trainer(**OmegaConf.to_container(cfg.trainer, resolve=True), callbacks=callbacks, logger=logger)
-    ckpt_path = cfg.get("ckpt_path")
-    if ckpt_path == "last" and not (ckpt_dir / "last.ckpt").exists():
-        ckpt_path = None
-    trainer.fit(model, datamodule=data, ckpt_path=ckpt_path)
+    ckpt_path = resume_path(cfg.get("ckpt_path"), ckpt_dir)
+    trainer.fit(model, datamodule=data, ckpt_path=ckpt_path, weights_only=True)
     result = Path(best.best_model_path) if best.best_model_path else ckpt_dir / "last.ckpt"
     if trainer.is_global_zero:
         score = best.best_model_score

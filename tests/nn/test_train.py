@@ -14,6 +14,7 @@ from hydra.core.hydra_config import HydraConfig
 from omegaconf import OmegaConf, open_dict
 
 from mocapnet.nn import EBD, EBF, WindowMLP
+from mocapnet.nn.checkpoints import read_checkpoint
 from mocapnet.nn.data import MotionDataModule
 from mocapnet.nn.train import train
 
@@ -92,7 +93,7 @@ def _final_state(tmp_path: Path, name: str, epochs: int, ckpt_path: str = "null"
         + TINY_MODEL["ebf"]
     )
     train(cfg)
-    return torch.load(tmp_path / name / "checkpoints" / "last.ckpt", weights_only=False)
+    return read_checkpoint(tmp_path / name / "checkpoints" / "last.ckpt")
 
 
 def test_fixed_seed_is_deterministic_and_resume_matches_uninterrupted_run(tmp_path):

@@ -1,0 +1,161 @@
+"""Checkpoints are data: a crafted checkpoint never runs code through any entry point, a truncated or foreign
+file is a clear error (exit 2), and a shipped checkpoint is checked against its SHA-256 (issue 14, item 1)."""
+
+from __future__ import annotations
+
+import pickle
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from mocapnet.cli import main
+from mocapnet.io.atomic import MocapFileError
+from mocapnet.nn import checkpoints
+from mocapnet.nn.checkpoints import read_checkpoint, read_index, sha256_of
+from mocapnet.nn.infer import load_model
+from mocapnet.nn.train import resume_path
+
+SAMPLE_BVH = Path(__file__).resolve().parents[2] / "mocapnet" / "data" / "bvh" / "01_01.bvh.gz"
+
+
+class _Payload:
+    """Unpickling this object would create ``marker`` (what an attacker's shell command stands for)."""
+
+    def __init__(self, marker: Path) -> None:
+        self.marker = marker
+
+    def __reduce__(self):
+        return (exec, (f"open({str(self.marker)!r}, 'w').write('pwned')",))
+
+
+def _evil_files(tmp_path: Path) -> list[tuple[Path, Path]]:
+    """``(checkpoint, marker)`` pairs: a torch.save zip and a raw pickle, each with a code-running payload in
+    an otherwise plausible checkpoint dict."""
+    out = []
+    for kind in ("zip", "raw"):
+        marker = tmp_path / f"marker_{kind}"
+        ckpt = {"mocapnet_model": "EBF", "hyper_parameters": {"n_channels": 3}, "state_dict": _Payload(marker)}
+        path = tmp_path / f"evil_{kind}.ckpt"
+        if kind == "zip":
+            torch.save(ckpt, path)
+        else:
+            path.write_bytes(pickle.dumps(ckpt, protocol=2))
+        out.append((path, marker))
+    return out
+
+
+def test_payload_would_run_code_if_unpickled(tmp_path):
+    """The test payload is real: plain unpickling creates the marker."""
+    (path, marker), _ = _evil_files(tmp_path)
+    torch.load(path, weights_only=False)
+    assert marker.exists()
+
+
+@pytest.mark.parametrize("entry", ["clean --method", "clean --model", "clean ebd+ebf", "evaluate", "evaluate pair"])
+def test_malicious_checkpoint_exits_2_and_runs_nothing(entry, tmp_path, capsys):
+    out = tmp_path / "out.bvh"
+    mask = tmp_path / "mask.npy"
+    gaps = np.zeros((2752, 31), dtype=bool)
+    gaps[100:110, 5] = True
+    np.save(mask, gaps)
+    for evil, marker in _evil_files(tmp_path):
+        argv = {
+            "clean --method": ["clean", str(SAMPLE_BVH), "-o", str(out), "--method", f"ebf={evil}"],
+            "clean --model": ["clean", str(SAMPLE_BVH), "-o", str(out), "--model", str(evil)],
+            "clean ebd+ebf": [
+                "clean",
+                str(SAMPLE_BVH),
+                "-o",
+                str(out),
+                "--mask",
+                str(mask),
+                "--model",
+                f"{evil},{evil}",
+            ],
+            "evaluate": ["evaluate", "--data", "sample", "--fold", "0", "--repeats", "1", "--method", f"ebf={evil}"],
+            "evaluate pair": [
+                "evaluate",
+                "--data",
+                "sample",
+                "--corruption",
+                "noise+gaps",
+                "--repeats",
+                "1",
+                "--method",
+                f"ebd+ebf={evil},{evil}",
+            ],
+        }[entry]
+        assert main(argv) == 2
+        err = capsys.readouterr().err
+        assert str(evil) in err and "refused" in err
+        assert not marker.exists()
+        assert not out.exists()
+
+
+def test_malicious_checkpoint_refused_by_every_loader(tmp_path):
+    for evil, marker in _evil_files(tmp_path):
+        for load in (read_checkpoint, load_model, lambda p: resume_path(str(p), tmp_path)):
+            with pytest.raises(MocapFileError, match="refused"):
+                load(evil)
+        with pytest.raises(MocapFileError, match="refused"):
+            checkpoints.export(evil, "never_written")
+        assert not marker.exists()
+    assert not (checkpoints.CHECKPOINT_DIR / "never_written.ckpt").exists()
+
+
+def test_truncated_and_foreign_checkpoints_are_clear_errors(tmp_path, capsys):
+    good = checkpoints.CHECKPOINT_DIR / read_index()[0]["file"]
+    truncated = tmp_path / "truncated.ckpt"
+    truncated.write_bytes(good.read_bytes()[: good.stat().st_size // 3])
+    foreign = tmp_path / "foreign.ckpt"
+    foreign.write_text("HIERARCHY\nROOT Hips\n")
+    a_list = tmp_path / "list.ckpt"
+    torch.save([1, 2, 3], a_list)
+    not_ours = tmp_path / "not_ours.ckpt"
+    torch.save({"state_dict": {}}, not_ours)
+    for path, message in (
+        (truncated, "truncated or foreign"),
+        (foreign, "truncated or foreign"),
+        (a_list, "not a mocapnet checkpoint"),
+        (not_ours, "not a mocapnet network"),
+    ):
+        with pytest.raises(MocapFileError, match=message):
+            load_model(path)
+        assert main(["clean", str(SAMPLE_BVH), "-o", str(tmp_path / "o.bvh"), "--model", str(path)]) == 2
+        assert str(path) in capsys.readouterr().err
+
+
+def test_resume_from_truncated_or_non_training_checkpoint_is_refused(tmp_path):
+    ckpt_dir = tmp_path / "checkpoints"
+    ckpt_dir.mkdir()
+    assert resume_path("last", ckpt_dir) is None
+    assert resume_path(None, ckpt_dir) is None
+    good = checkpoints.CHECKPOINT_DIR / read_index()[0]["file"]
+    (ckpt_dir / "last.ckpt").write_bytes(good.read_bytes()[:1000])
+    with pytest.raises(MocapFileError, match="truncated"):
+        resume_path("last", ckpt_dir)
+    shutil.copy(good, ckpt_dir / "last.ckpt")
+    with pytest.raises(MocapFileError, match="not a training checkpoint"):
+        resume_path("last", ckpt_dir)
+
+
+def test_shipped_checkpoints_carry_a_verified_sha256(tmp_path, monkeypatch):
+    entries = read_index()
+    for entry in entries:
+        path = checkpoints.CHECKPOINT_DIR / entry["file"]
+        assert entry["sha256"] == sha256_of(path)
+        assert entry["recipe"] and entry["budget"] and entry["epochs"] >= 1
+    fake_dir = tmp_path / "ckpts"
+    fake_dir.mkdir()
+    shutil.copy(checkpoints.INDEX, fake_dir / "index.json")
+    name = entries[0]["file"]
+    damaged = bytearray((checkpoints.CHECKPOINT_DIR / name).read_bytes())
+    damaged[-100] ^= 0xFF
+    (fake_dir / name).write_bytes(bytes(damaged))
+    monkeypatch.setattr(checkpoints, "CHECKPOINT_DIR", fake_dir.resolve())
+    monkeypatch.setattr(checkpoints, "INDEX", fake_dir / "index.json")
+    with pytest.raises(MocapFileError, match="SHA-256"):
+        read_checkpoint(fake_dir / name)
