@@ -25,6 +25,9 @@ class CleanerModule(L.LightningModule, ABC):
     val_metric = "val/angle_err_deg"
 
     def __init__(self, n_channels: int, lr: float, weight_decay: float, lr_patience: int) -> None:
+        """``lr`` Adam learning rate; ``lr_patience`` epochs without improvement before it is halved (schedule
+        ``plateau``). Subclasses may add ``lr_schedule="cosine"`` to their hyper-parameters: see
+        ``scheduled_lr``."""
         super().__init__()
         self.register_buffer("center", torch.zeros(n_channels))
         self.register_buffer("scale", torch.ones(n_channels))
@@ -84,8 +87,40 @@ class CleanerModule(L.LightningModule, ABC):
 
     def configure_optimizers(self) -> dict[str, Any]:
         opt = torch.optim.Adam(self.parameters(), lr=self.hparams.lr, weight_decay=self.hparams.weight_decay)
+        schedule = self.hparams.get("lr_schedule", "plateau")
+        if schedule not in ("plateau", "cosine"):
+            raise ValueError(f"lr_schedule must be 'plateau' or 'cosine', got {schedule!r}")
+        if schedule == "cosine":
+            return {"optimizer": opt}
         sched = torch.optim.lr_scheduler.ReduceLROnPlateau(opt, factor=0.5, patience=self.hparams.lr_patience)
         return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "monitor": self.val_metric}}
+
+    def budget_fraction(self) -> float:
+        """Fraction of the training budget spent, 0 … 1: wall-clock time over ``trainer.max_time`` when one is
+        set (Lightning's Timer keeps the elapsed time across resumes), else steps over the planned steps."""
+        from lightning.pytorch.callbacks import Timer
+
+        timers = [c for c in self.trainer.callbacks if isinstance(c, Timer) and c._duration]
+        if timers:
+            return min(1.0, timers[0].time_elapsed("train") / timers[0]._duration)
+        return min(1.0, self.global_step / max(float(self.trainer.estimated_stepping_batches), 1.0))
+
+    def scheduled_lr(self, fraction: float) -> float:
+        """Cosine schedule over the budget: linear warm-up over the first 2 %, then ``lr`` decaying to
+        ``lr / 50`` at the end of the budget."""
+        lr, warm = float(self.hparams.lr), 0.02
+        if fraction < warm:
+            return lr * (0.1 + 0.9 * fraction / warm)
+        floor = lr / 50.0
+        return floor + 0.5 * (lr - floor) * (1.0 + np.cos(np.pi * (fraction - warm) / (1.0 - warm)))
+
+    def on_train_batch_start(self, batch: Any, batch_idx: int) -> None:
+        if self.hparams.get("lr_schedule", "plateau") != "cosine":
+            return
+        lr = self.scheduled_lr(self.budget_fraction())
+        for group in self.trainer.optimizers[0].param_groups:
+            group["lr"] = lr
+        self.log("lr", lr, batch_size=1)
 
     def on_save_checkpoint(self, checkpoint: dict[str, Any]) -> None:
         checkpoint["mocapnet_model"] = type(self).__name__

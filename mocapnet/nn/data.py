@@ -14,6 +14,17 @@ uses the standard deviation σ_c of the whole (training) clip, as PROTOCOL.md de
 not of the crop. Random streams are seeded by ``(seed, rank, epoch counter)``; the counter is saved in the
 checkpoint, so a resumed run draws the batches an uninterrupted run would.
 
+Spatial noise (``spatial-Xcm``) on a crop: IK per crop is too slow for training, so ``setup`` computes, once per
+training clip and level X, the angle change that X cm of 3-D joint noise causes through bone-length-preserving
+IK (``corrupt.spatial_noise``); a crop adds that residual at its (nearest, when time-warped) frames with a random sign.
+
+Time warping (``time_warp=(lo, hi)``): each batch is resampled at a rate drawn log-uniformly in ``[lo, hi]``
+(linear interpolation of the unwrapped channels; the root angular velocity is scaled by the rate), so the
+networks see motions played faster and slower than recorded. Left/right mirroring is not offered: Bandai's rest
+skeleton is not mirror-symmetric in its joint frames (left arm bones along +X, right along −X; the legs'
+lateral axis is Y, the shoulders' Z), so a swap would need a per-joint rest-frame correction. A random root
+heading is not needed: the only root input, the hips' angular velocity, is expressed in the hips' own frame.
+
 Validation clips are corrupted once with ``corrupt_motion`` and the protocol's seeds (repeat 0).
 """
 
@@ -28,12 +39,32 @@ import torch
 from torch.utils.data import DataLoader, IterableDataset
 
 from mocapnet.corpus import load_corpus
-from mocapnet.corrupt import additive_noise, corrupt_motion, gap_mask, long_gap_mask, seed_for
+from mocapnet.corrupt import additive_noise, corrupt_motion, gap_mask, long_gap_mask, seed_for, spatial_noise
 from mocapnet.methods.baselines import lerp_fill
 from mocapnet.motion import Motion
 from mocapnet.nn.features import ClipArrays, Normaliser, scored_index, scored_joint_of_channel, topology_hash
 
-TRAIN_CORRUPTIONS = ("none", "angular-K", "uniform-K", "bias-const", "bias-sine", "gaps", "gaps-long", "noise+gaps")
+TRAIN_CORRUPTIONS = (
+    "none",
+    "angular-K",
+    "uniform-K",
+    "spatial-Xcm",
+    "bias-const",
+    "bias-sine",
+    "gaps",
+    "gaps-long",
+    "noise+gaps",
+)
+
+
+def spatial_level(name: str) -> float | None:
+    """The noise level X (cm) of a ``spatial-Xcm`` training corruption, else None."""
+    if not (name.startswith("spatial-") and name.endswith("cm")):
+        return None
+    try:
+        return float(name[len("spatial-") : -2])
+    except ValueError:
+        return None
 
 
 def corpus_splits(
@@ -51,24 +82,55 @@ def corpus_splits(
 
 
 def corrupt_window(
-    crop: np.ndarray, sigma: np.ndarray, joint_of_channel: np.ndarray, fps: float, name: str, rng: np.random.Generator
+    crop: np.ndarray,
+    sigma: np.ndarray,
+    joint_of_channel: np.ndarray,
+    fps: float,
+    name: str,
+    rng: np.random.Generator,
+    spatial: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Corrupt a training crop of scored channels ``[L, C_s]`` (degrees) with the training corruption
-    ``name`` (one of ``TRAIN_CORRUPTIONS``, K a number); ``sigma [C_s]`` is the clip's σ_c and
-    ``joint_of_channel [C_s]`` maps channels to scored joints for gaps. Returns ``(noisy, mask)``,
-    ``noisy`` holding the corrupted (not yet filled) values where the mask is True."""
-    known = name in TRAIN_CORRUPTIONS or name.startswith(("angular-", "uniform-"))
+    ``name`` (one of ``TRAIN_CORRUPTIONS``, K and X numbers); ``sigma [C_s]`` is the clip's σ_c and
+    ``joint_of_channel [C_s]`` maps channels to scored joints for gaps; ``spatial [L, C_s]`` (degrees) is the
+    IK residual of X cm joint noise over the crop (``spatial_residual``), needed by ``spatial-Xcm``. Returns
+    ``(noisy, mask)``, ``noisy`` holding the corrupted (not yet filled) values where the mask is True."""
+    level = spatial_level(name)
+    known = name in TRAIN_CORRUPTIONS or name.startswith(("angular-", "uniform-")) or level is not None
     if not known:
         raise ValueError(f"training corruption {name!r} is not supported; use one of {', '.join(TRAIN_CORRUPTIONS)}")
-    noisy = crop.copy() if name in ("gaps", "gaps-long") else additive_noise(name, crop, sigma, fps, rng)
     n_joints = int(joint_of_channel.max()) + 1
+    no_gaps = np.zeros(crop.shape, dtype=bool)
+    if level is not None:
+        if spatial is None:
+            raise ValueError(f"training corruption {name!r} needs the clip's IK residual (spatial_residual)")
+        return crop + rng.choice([-1.0, 1.0]) * spatial, no_gaps
+    if name == "none":
+        return crop.copy(), no_gaps
+    noisy = crop.copy() if name in ("gaps", "gaps-long") else additive_noise(name, crop, sigma, fps, rng)
     if name in ("gaps", "noise+gaps"):
         joint_mask = gap_mask(len(crop), n_joints, fps, rng)
     elif name == "gaps-long":
         joint_mask = long_gap_mask(len(crop), np.arange(n_joints), n_joints, fps, rng)
     else:
-        joint_mask = np.zeros((len(crop), n_joints), dtype=bool)
+        return noisy, no_gaps
     return noisy, joint_mask[:, joint_of_channel]
+
+
+def resample(x: np.ndarray, positions: np.ndarray) -> np.ndarray:
+    """Rows of ``x [T, D]`` at fractional frame ``positions [L]`` (0 ≤ p ≤ T-1), linearly interpolated."""
+    i0 = np.minimum(np.floor(positions).astype(np.int64), len(x) - 1)
+    i1 = np.minimum(i0 + 1, len(x) - 1)
+    frac = (positions - i0)[:, None]
+    return (1.0 - frac) * x[i0] + frac * x[i1]
+
+
+def spatial_residual(motion: Motion, level_cm: float, rng: np.random.Generator) -> np.ndarray:
+    """Scored-channel change ``[T, C_s]`` (degrees, wrapped to ±180) that ``level_cm`` of i.i.d. 3-D noise on
+    every joint position causes through IK (``corrupt.spatial_noise``)."""
+    idx = scored_index(motion.skeleton)
+    diff = spatial_noise(motion, level_cm, rng)[:, idx] - motion.channels[:, idx]
+    return ((diff + 180.0) % 360.0 - 180.0).astype(np.float32)
 
 
 def as_batch(filled: np.ndarray, mask: np.ndarray, clean: np.ndarray, angvel: np.ndarray) -> dict[str, torch.Tensor]:
@@ -121,9 +183,11 @@ class MotionDataModule(L.LightningDataModule):
         limit: int | None = None,
         seed: int = 0,
         holdout_style: str | None = None,
+        time_warp: tuple[float, float] | None = None,
     ) -> None:
         super().__init__()
         self.save_hyperparameters()
+        self.spatial: dict[float, list[np.ndarray]] = {}
         self.epoch_counter = 0
         self.train_clips: list[ClipArrays] = []
         self.val_batches: list[dict[str, torch.Tensor]] = []
@@ -146,6 +210,9 @@ class MotionDataModule(L.LightningDataModule):
         self.channel_labels = [skeleton.channel_labels[i] for i in scored_index(skeleton)]
         self.joint_of_channel = scored_joint_of_channel(skeleton)
         self.train_clips = [ClipArrays.from_motion(m) for m in train]
+        rng = np.random.default_rng([hp.seed, 7])
+        for level in sorted({spatial_level(c) for c in hp.corruptions} - {None}):
+            self.spatial[level] = [spatial_residual(m, level, rng) for m in train]
         self.lengths = np.array([c.scored.shape[0] for c in self.train_clips])
         val = val[:: max(1, len(val) // hp.val_limit)][: hp.val_limit] if hp.val_limit else val
         self.val_batches = [self.corrupted_clip(m, c) for m in val for c in hp.val_corruptions]
@@ -170,21 +237,29 @@ class MotionDataModule(L.LightningDataModule):
             length = hp.window_frames
         else:
             length = int(rng.integers(hp.crop_min, hp.crop_max + 1))
-        length = min(length, int(self.lengths.max()))
-        spans = np.maximum(self.lengths - length + 1, 0).astype(np.float64)
+        rate = float(np.exp(rng.uniform(*np.log(hp.time_warp)))) if hp.time_warp else 1.0
+        longest = int(self.lengths.max())
+        rate = min(rate, (longest - 1) / max(length - 1, 1))
+        length = min(length, longest)
+        need = int(np.ceil((length - 1) * rate)) + 1
+        spans = np.maximum(self.lengths - need + 1, 0).astype(np.float64)
         clips = rng.choice(len(self.train_clips), size=hp.batch_size, p=spans / spans.sum())
+        offsets = np.arange(length) * rate
         out = {k: [] for k in ("filled", "mask", "clean", "angvel")}
         for i in clips:
             clip = self.train_clips[i]
             start = int(rng.integers(0, spans[i]))
-            sl = slice(start, start + length)
-            clean = clip.scored[sl].astype(np.float64)
+            positions = np.minimum(start + offsets, len(clip.scored) - 1)
+            clean = resample(clip.scored.astype(np.float64), positions)
             corruption = hp.corruptions[int(rng.integers(len(hp.corruptions)))]
-            noisy, mask = corrupt_window(clean, clip.sigma, self.joint_of_channel, clip.fps, corruption, rng)
+            level = spatial_level(corruption)
+            spatial = None if level is None else self.spatial[level][i][np.round(positions).astype(np.int64)]
+            args = (clip.sigma, self.joint_of_channel, clip.fps, corruption, rng, spatial)
+            noisy, mask = corrupt_window(clean, *args)
             out["filled"].append(lerp_fill(noisy, mask) if mask.any() else noisy)
             out["mask"].append(mask)
             out["clean"].append(clean)
-            out["angvel"].append(clip.angvel[sl])
+            out["angvel"].append(resample(clip.angvel, positions) * rate)
         return as_batch(*(np.stack(out[k]) for k in ("filled", "mask", "clean", "angvel")))
 
     def train_dataloader(self) -> DataLoader:

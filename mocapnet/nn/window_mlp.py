@@ -23,6 +23,7 @@ class WindowMLP(CleanerModule):
         lr: float = 1e-3,
         weight_decay: float = 0.0,
         lr_patience: int = 4,
+        lr_schedule: str = "plateau",
         skeleton_hash: str = "",
         fps: float = 0.0,
         corpus: str = "",
