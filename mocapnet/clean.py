@@ -23,6 +23,7 @@ class CleanOptions:
     model: str | None = None
     mask: str | None = None
     database: str | None = None
+    plot: str | None = None  # C3D: PNG of the filled markers' trajectories
 
 
 @dataclass(frozen=True)
@@ -120,29 +121,52 @@ def clean_bvh_file(src: Path, out: Path, options: CleanOptions) -> CleanResult:
 
 
 def clean_c3d_file(src: Path, out: Path, options: CleanOptions) -> CleanResult:
-    """Fill the gaps of a C3D file's markers and write the result."""
+    """Fill the gaps of a C3D file's markers and write the result.
+
+    The default method ``auto`` (``mocapnet.methods.autofill``) chooses a filler per gap, checks each fill
+    and leaves gaps it cannot fill plausibly missing; another ``--method`` fills every gap it can. Either
+    way ``details["gaps"]`` holds one JSON-able report per gap (marker, frames, method, step ratio, status)
+    and ``options.plot`` names a PNG of the filled markers to write.
+    """
     from mocapnet.io import read_c3d, write_c3d
-    from mocapnet.methods.registry import MethodContext, build_method
+    from mocapnet.methods.autofill import auto_fill, describe_fill, plot_fills
+    from mocapnet.methods.registry import MethodContext, build_method, parse_method
     from mocapnet.motion import Markers
 
     markers = read_c3d(src)
-    method = options.method or ("knn" if options.database else "pca")
-    if options.database and method.startswith("knn") and "database=" not in method:
-        method += (":" if ":" not in method else ",") + f"database={options.database}"
-    built = build_method(method, MethodContext(corruption="file gaps"), space="points")
+    method = options.method or "auto"
+    name, method_options = parse_method(method)
     usable = np.flatnonzero(markers.visible.any(axis=0))
-    filled = markers.points.copy()
     n_missing = int((~markers.visible[:, usable]).sum())
-    if n_missing:
-        filled[:, usable] = built.clean(markers.select(usable))
-    result = Markers(filled, np.isfinite(filled).all(axis=2), markers.labels, markers.fps, markers.name)
+    if name == "auto":
+        database = method_options.pop("database", options.database)
+        try:
+            got = auto_fill(markers, database=database, **method_options)
+        except TypeError as exc:
+            raise ValueError(f"method {method!r}: {exc}") from exc
+        points, gaps = got.points, got.gaps
+    else:
+        if options.database and name == "knn" and "database" not in method_options:
+            method += (":" if ":" not in method else ",") + f"database={options.database}"
+        built = build_method(method, MethodContext(corruption="file gaps"), space="points")
+        points = markers.points.copy()
+        if n_missing:
+            points[:, usable] = built.clean(markers.select(usable))
+        gaps = describe_fill(markers, points, name)
+    filled = np.isfinite(points).all(axis=2) & ~markers.visible
+    result = Markers(points, markers.visible | filled, markers.labels, markers.fps, markers.name)
     write_c3d(out, result, inputs=(src,))
+    if options.plot:
+        plot_fills(options.plot, markers, points, gaps)
     empty = markers.n_markers - usable.size
-    n_filled = int((result.visible & ~markers.visible).sum())
+    n_filled = int(filled.sum())
+    left = sum(g["status"] == "unfilled" for g in gaps)
     return CleanResult(
         src, out, method, markers.n_frames, n_filled,
         f"{src} -> {out}: {method} filled {n_filled} of {n_missing} missing samples in {usable.size} markers"
+        + (f"; {left} gaps left missing (no plausible fill)" if left and name == "auto" else "")
         + (f"; {empty} markers with no data at all left empty" if empty else ""),
+        {"gaps": gaps},
     )  # fmt: skip
 
 

@@ -4,11 +4,15 @@ database, only the clip itself.
 
 Our reading of their reconstruction strategy R2 (each marker with gaps is rebuilt on its own):
 
-1. Subtract the mean trajectory (per frame, the centroid of the markers that have no gap; of the visible
-   markers when every marker has one), so the coordinates move with the subject.
+1. Subtract the mean trajectory (per frame, the centroid of the markers that have no gap; when every marker
+   has one, the centroid of the visible markers each shifted by its mean offset — :func:`moving_centre` —
+   so the centre does not jump when markers appear or vanish), so the coordinates move with the subject.
 2. For marker i with gaps: markers with gaps farther from i than ``distal_threshold`` × i's mean distance to
    all markers, and markers whose gaps overlap i's, are zeroed (left out); the frames that are complete in
-   what is left form N, the frames where i is missing are to be rebuilt.
+   what is left form N, the frames where i is missing are to be rebuilt. When N has fewer than
+   ``min_frames`` frames, further markers are left out (those whose gaps cost N most first); when still
+   fewer, or fewer than ``min_markers`` markers remain, i is not rebuilt (NaN: PCA cannot be trusted there
+   and says so rather than extrapolating from two frames).
 3. Every column is normalised by the mean and standard deviation over N and weighted by
    ``exp(-d² / (2 σ²))`` (d = the marker's mean distance to i, σ = ``weight_scale_cm``); marker i itself
    gets the small weight ``missing_weight``.
@@ -65,13 +69,12 @@ def _principal(data: np.ndarray, min_cum_sv: float) -> tuple[np.ndarray, int]:
 
 def _reconstruct(
     data: np.ndarray, target: int, weights: np.ndarray, rebuild: np.ndarray, min_cum_sv: float
-) -> np.ndarray | None:
+) -> np.ndarray:
     """Coordinates ``[R, 3]`` of marker ``target`` in the rows ``rebuild`` of ``data [T, M, 3]`` (NaN where
-    missing, left-out markers already zero), from the complete rows; None without two complete rows."""
+    missing, left-out markers already zero), from the rows complete in ``data`` (the caller makes sure there
+    are enough). Only the target's columns are un-weighted, so no column of weight 0 is ever divided by."""
     flat = data.reshape(len(data), -1)
     complete = np.isfinite(flat).all(axis=1)
-    if complete.sum() < 2:
-        return None
     cols = slice(3 * target, 3 * target + 3)
     n_full = flat[complete]
     n_zero = n_full.copy()
@@ -87,8 +90,50 @@ def _reconstruct(
     n = max(n0, n1)
     v_full, v_zero = v_full[:, :n], v_zero[:, :n]
     scores = ((m_zero - mean_zero) / std * w) @ v_zero @ (v_full.T @ v_zero)
-    rebuilt = mean_full + (scores @ v_full.T) * std / w
-    return rebuilt[:, cols]
+    return mean_full[cols] + (scores @ v_full[cols].T) * std[cols] / w[cols]
+
+
+def moving_centre(points: np.ndarray, visible: np.ndarray) -> np.ndarray:
+    """Mean trajectory ``[T, 3]`` (cm) of ``points [T, M, 3]``: the centroid of the markers that are never
+    missing; when every marker has gaps, the centroid of the visible markers each shifted by its mean offset
+    from that centroid (two refinements), so the centre does not jump when a marker appears or vanishes.
+    Frames with no visible marker are interpolated linearly in time (held beyond the ends)."""
+    whole = visible.all(axis=0)
+    if whole.any():
+        return points[:, whole].mean(axis=1)
+    seen = visible.any(axis=1)
+    if not seen.any():
+        raise ValueError("no marker is visible in any frame")
+    count = np.maximum(visible.sum(axis=1), 1)[:, None]
+    pts = np.where(visible[..., None], points, 0.0)
+    centre = pts.sum(axis=1) / count
+    for _ in range(2):
+        rel = np.where(visible[..., None], points - centre[:, None], 0.0)
+        offset = rel.sum(axis=0) / np.maximum(visible.sum(axis=0), 1)[:, None]  # [M, 3]
+        centre = np.where(visible[..., None], points - offset, 0.0).sum(axis=1) / count
+    if not seen.all():
+        centre = lerp_fill(centre, np.repeat(~seen[:, None], 3, axis=1))
+    return centre
+
+
+def _kept_markers(visible: np.ndarray, target: int, kept: np.ndarray, min_frames: int) -> tuple[np.ndarray, np.ndarray]:
+    """Drop markers from ``kept [M]`` (bool; markers visible wherever ``target`` is missing) until at least
+    ``min_frames`` frames have ``target`` and every kept marker visible: each round drops the marker whose
+    removal completes the most frames (else the one missing most often where ``target`` is seen). Returns
+    the kept mask and the complete frames ``[T]``."""
+    kept = kept.copy()
+    seen = visible[:, target]
+    while True:
+        absent = ~visible[:, kept]
+        complete = seen & ~absent.any(axis=1)
+        if complete.sum() >= min_frames or not kept.any():
+            return kept, complete
+        idx = np.flatnonzero(kept)
+        single = seen & (absent.sum(axis=1) == 1)
+        gain = absent[single].sum(axis=0)
+        if not gain.any():
+            gain = absent[seen].sum(axis=0)
+        kept[idx[int(np.argmax(gain))]] = False
 
 
 def pca_fill(
@@ -98,38 +143,38 @@ def pca_fill(
     missing_weight: float = 0.02,
     distal_threshold: float = 0.5,
     min_cum_sv: float = 0.99,
+    min_frames: int = 20,
+    min_markers: int = 3,
 ) -> np.ndarray:
     """Fill the missing samples of ``points [T, M, 3]`` (cm; ``visible [T, M]``) from the clip's own
-    inter-marker correlations (module docstring). Returns ``[T, M, 3]`` cm: visible samples unchanged,
-    NaN where a marker could not be rebuilt (no two frames complete in the markers it is rebuilt from)."""
+    inter-marker correlations (module docstring). Returns ``[T, M, 3]`` cm: visible samples unchanged, NaN
+    where PCA cannot be trusted: a marker is rebuilt only from markers visible wherever it is missing, and
+    only when at least ``min_frames`` frames show it together with them and at least ``min_markers`` of them
+    carry weight; markers are dropped (most harmful first) until enough frames are complete."""
     points = np.where(visible[..., None], points, np.nan)
-    gapped = np.flatnonzero(~visible.all(axis=0))
+    gapped = np.flatnonzero(~visible.all(axis=0) & visible.any(axis=0))
     out = points.copy()
     if gapped.size == 0:
         return out
-    whole = visible.all(axis=0)
-    ref = whole if whole.any() else np.ones(points.shape[1], dtype=bool)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        centre = np.nanmean(points[:, ref], axis=1)  # [T, 3]
-    centre = np.nan_to_num(centre)
+    centre = moving_centre(points, visible)
     rel = points - centre[:, None]
     distances = mean_distances(points, visible, gapped)
     for row, i in enumerate(gapped):
         d = distances[row]
         missing_i = ~visible[:, i]
-        data = rel.copy()
-        for other in gapped:
-            if other == i:
-                continue
-            far = d[other] > distal_threshold * np.nanmean(d)
-            if far or (~visible[missing_i, other]).any():
-                data[:, other] = 0.0
         weights = np.exp(-(np.nan_to_num(d, nan=np.inf) ** 2) / (2.0 * weight_scale_cm**2))
+        kept = visible[missing_i].all(axis=0) & (weights > 0)
+        with np.errstate(invalid="ignore"):
+            far = d > distal_threshold * np.nanmean(d)
+        kept &= ~(far & ~visible.all(axis=0))
+        kept[i] = False
+        kept, complete = _kept_markers(visible, int(i), kept, min_frames)
+        if kept.sum() < min_markers or complete.sum() < min_frames:
+            continue
+        kept[i] = True
+        data = np.where(kept[None, :, None], rel, 0.0)  # left-out markers zero; kept ones NaN where missing
         weights[i] = missing_weight
-        rebuilt = _reconstruct(data, int(i), weights, missing_i, min_cum_sv)
-        if rebuilt is not None:
-            out[missing_i, i] = rebuilt + centre[missing_i]
+        out[missing_i, i] = _reconstruct(data, int(i), weights, missing_i, min_cum_sv) + centre[missing_i]
     return out
 
 

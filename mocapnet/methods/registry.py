@@ -64,6 +64,8 @@ _LAZY: dict[str, str] = {
     "extrapolate-circular": "mocapnet.methods.extrapolate",
     "knn": "mocapnet.methods.knn",
     "pca": "mocapnet.methods.knn",
+    "rigid": "mocapnet.methods.rigid",
+    "auto": "mocapnet.methods.autofill",
     "ebf": "mocapnet.methods.neural",
     "ebd": "mocapnet.methods.neural",
     "ebd+ebf": "mocapnet.methods.neural",

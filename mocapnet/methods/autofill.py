@@ -1,0 +1,373 @@
+"""Gap filling that chooses a filler per gap and checks every fill (``auto``, the default of
+``mocapnet clean take.c3d``).
+
+A *gap* is a run of missing frames of one marker. For each gap, candidates are tried in order and the first
+whose fill passes the check is kept:
+
+* ``rigid`` — carried with three or more visible markers that stay rigid with it (:mod:`.rigid`; the
+  "rigid body fill" of Vicon and Qualisys);
+* ``pca`` — the clip's inter-marker correlations (:mod:`.pca`; NaN, hence skipped, where PCA cannot be
+  trusted);
+* ``knn`` — nearest poses of a database of clean takes (only when a database is given);
+* ``spline``, ``lerp`` — interpolation in time, only between two measured edges and only for gaps of at
+  most ``max_interp_s`` seconds (a straight line through a long gap passes any speed check and is still
+  made up).
+
+Gaps of at most ``spline_first_s`` seconds try ``spline`` first: over a few frames a marker's own path
+predicts it better than its neighbours do. Reconstructions that do not meet the measured edges by
+construction (``pca``, ``knn``) are shifted by the offset between their linear extrapolation and the
+measured edge samples, blended linearly across the gap.
+
+**Check** (the plausibility figure of ``c3d-fillcheck``): every frame-to-frame step that touches a filled
+sample — the steps into and out of the gap included — divided by the largest step the same marker makes
+between two measured frames (the largest over all markers when it has at most 10 measured steps). A fill
+passes when this ratio is at most ``limit`` (2). A gap no candidate fills plausibly is left missing and
+reported, never invented.
+"""
+
+from __future__ import annotations
+
+import os
+import warnings
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from mocapnet.methods.baselines import lerp_fill, spline_fill
+from mocapnet.methods.pca import fill_remaining_linear, pca_fill
+from mocapnet.methods.registry import MethodContext, build_method, register
+from mocapnet.methods.rigid import distance_spread, gap_runs, rigid_fill_gap
+from mocapnet.motion import Markers
+
+CANDIDATES = ("rigid", "pca", "knn", "spline", "lerp")
+INTERPOLATORS = ("spline", "lerp")
+_MIN_MEASURED_STEPS = 10  # a marker with fewer measured steps is compared with the largest of all markers
+
+
+def largest_measured_steps(points: np.ndarray, visible: np.ndarray) -> np.ndarray:
+    """Largest frame-to-frame step (cm) of each marker between two measured frames, ``[M]``; the largest of
+    all markers for a marker with at most 10 measured steps; NaN when no marker has more."""
+    steps = np.linalg.norm(np.diff(np.nan_to_num(points), axis=0), axis=-1)  # [T-1, M]
+    both = visible[1:] & visible[:-1]
+    enough = both.sum(axis=0) > _MIN_MEASURED_STEPS
+    own = np.where(both, steps, 0.0).max(axis=0, initial=0.0)
+    overall = own[enough].max() if enough.any() else np.nan
+    return np.where(enough, own, overall)
+
+
+def step_ratio(track: np.ndarray, start: int, stop: int, reference_cm: float) -> float:
+    """Worst step ÷ ``reference_cm`` among the steps of ``track [T, 3]`` (cm) that touch frames
+    ``start .. stop-1`` (the steps into and out of them included; steps to a NaN sample are skipped).
+    NaN when no step can be measured or there is no reference."""
+    lo, hi = max(start - 1, 0), min(stop + 1, len(track))
+    steps = np.linalg.norm(np.diff(track[lo:hi], axis=0), axis=-1)
+    steps = steps[np.isfinite(steps)]
+    if steps.size == 0 or not reference_cm > 0:
+        return float("nan")
+    return float(steps.max() / reference_cm)
+
+
+def match_edges(fill: np.ndarray, track: np.ndarray, start: int, stop: int) -> np.ndarray:
+    """Shift a reconstruction ``fill [L, 3]`` of frames ``start .. stop-1`` so that its linear extrapolation
+    meets the measured samples of ``track [T, 3]`` at ``start - 1`` and ``stop``; the two offsets are
+    blended linearly across the gap (one offset when one edge is measured). Gaps of one frame get the mean
+    offset of the fill to its measured neighbours."""
+    n = len(fill)
+    offsets, where = [], []
+    if start > 0 and np.isfinite(track[start - 1]).all():
+        guess = 2 * fill[0] - fill[1] if n > 1 else fill[0]
+        offsets.append(track[start - 1] - guess)
+        where.append(0.0)
+    if stop < len(track) and np.isfinite(track[stop]).all():
+        guess = 2 * fill[-1] - fill[-2] if n > 1 else fill[-1]
+        offsets.append(track[stop] - guess)
+        where.append(1.0)
+    if not offsets:
+        return fill
+    if len(offsets) == 1 or n == 1:
+        return fill + np.mean(offsets, axis=0)
+    w = (np.arange(1, n + 1) / (n + 1))[:, None]
+    return fill + (1.0 - w) * offsets[0] + w * offsets[1]
+
+
+@dataclass
+class AutoFill:
+    """Result of :func:`auto_fill`: ``points [T, M, 3]`` cm (NaN where a gap was left missing), ``filled
+    [T, M]`` (True where a missing sample got a value) and one JSON-able report per gap (``gaps``)."""
+
+    points: np.ndarray
+    filled: np.ndarray
+    gaps: list[dict]
+
+
+class _Candidates:
+    """Lazily computed whole-take fills and the per-gap rigid fill for :func:`auto_fill`."""
+
+    def __init__(self, markers: Markers, database: str | None, rigid_options: dict) -> None:
+        self.markers = markers
+        self.points = markers.points
+        self.visible = markers.visible
+        self.database = database
+        self.rigid_options = rigid_options
+        self._whole: dict[str, np.ndarray] = {}
+        self._spread: np.ndarray | None = None
+
+    def whole(self, name: str) -> np.ndarray:
+        if name not in self._whole:
+            pts, vis = self.points, self.visible
+            t, m, _ = pts.shape
+            flat, mask = pts.reshape(t, m * 3), np.repeat(~vis, 3, axis=1)
+            if name == "pca":
+                out = pca_fill(pts, vis)
+            elif name == "knn":
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore")
+                    knn = build_method(f"knn:database={self.database}", space="points")
+                    out = knn.clean(self.markers)
+            elif name == "spline":
+                out = spline_fill(flat, mask).reshape(t, m, 3)
+            else:
+                out = lerp_fill(flat, mask).reshape(t, m, 3)
+            self._whole[name] = out
+        return self._whole[name]
+
+    def fill(self, name: str, marker: int, start: int, stop: int) -> tuple[np.ndarray | None, dict]:
+        """The candidate ``name``'s fill ``[stop - start, 3]`` of one gap and facts about it, or None and
+        ``{"reason": ...}``."""
+        if name == "rigid":
+            if self._spread is None:
+                self._spread = distance_spread(self.points, self.visible)
+            got = rigid_fill_gap(self.points, self.visible, self._spread, marker, start, stop, **self.rigid_options)
+            if got is None:
+                return None, {"reason": "fewer than 3 rigid partners visible through the gap"}
+            labels = [self.markers.labels[p] for p in got.partners]
+            return got.points, {"partners": labels, "fit_residual_cm": round(got.residual_cm, 3)}
+        fill = self.whole(name)[start:stop, marker]
+        if not np.isfinite(fill).all():
+            why = "PCA cannot be trusted here (too few frames or markers)" if name == "pca" else "no fill"
+            return None, {"reason": why}
+        if name in ("pca", "knn"):
+            fill = match_edges(fill, self.points[:, marker], start, stop)
+        return fill, {}
+
+
+def _order(seconds: float, order: Sequence[str], spline_first_s: float) -> list[str]:
+    if seconds <= spline_first_s and "spline" in order:
+        return ["spline", *[c for c in order if c != "spline"]]
+    return list(order)
+
+
+def auto_fill(
+    markers: Markers,
+    database: str | os.PathLike | None = None,
+    limit: float = 2.0,
+    max_interp_s: float = 0.5,
+    spline_first_s: float = 0.1,
+    order: Sequence[str] = CANDIDATES,
+    max_std_cm: float = 2.0,
+    max_partners: int = 6,
+) -> AutoFill:
+    """Fill each gap of ``markers`` with the first candidate of ``order`` whose fill passes the step check
+    (module docstring), leaving the gap missing when none does.
+
+    Parameters
+    ----------
+    markers : points ``[T, M, 3]`` cm, ``visible [T, M]``.
+    database : folder of clean C3D takes of the same marker set; enables the ``knn`` candidate.
+    limit : largest accepted step ratio (worst filled step ÷ the marker's largest measured step).
+    max_interp_s : longest gap (seconds) that ``spline`` / ``lerp`` may fill.
+    spline_first_s : gaps up to this long (seconds) try ``spline`` first.
+    order : candidates in the order they are tried (subset of ``CANDIDATES``).
+    max_std_cm, max_partners : rigid partners' largest distance spread (cm) and how many are used.
+
+    Returns
+    -------
+    :class:`AutoFill`; each gap report holds ``marker``, ``marker_index``, ``first_frame`` and
+    ``last_frame`` (0-based, inclusive), ``frames``, ``seconds``, ``status`` (``filled``/``unfilled``),
+    ``method``, ``ratio`` (the plausibility figure; null when unfilled), ``tried`` (why earlier candidates
+    were refused) and, for rigid fills, ``partners`` and ``fit_residual_cm``.
+    """
+    unknown = [c for c in order if c not in CANDIDATES]
+    if unknown:
+        raise ValueError(f"unknown auto candidates {unknown}; choose from {CANDIDATES}")
+    if not limit > 0:
+        raise ValueError(f"limit must be positive, got {limit}")
+    points, visible = markers.points, markers.visible
+    n_frames = markers.n_frames
+    reference = largest_measured_steps(points, visible)
+    candidates = _Candidates(
+        markers, str(database) if database else None, {"max_std_cm": max_std_cm, "max_partners": max_partners}
+    )
+    out = points.copy()
+    filled = np.zeros(visible.shape, dtype=bool)
+    gaps: list[dict] = []
+    for m in np.flatnonzero(~visible.all(axis=0)):
+        runs = gap_runs(~visible[:, m])
+        for start, stop in runs:
+            seconds = (stop - start) / markers.fps
+            report = {
+                "marker": markers.labels[m],
+                "marker_index": int(m),
+                "first_frame": start,
+                "last_frame": stop - 1,
+                "frames": stop - start,
+                "seconds": round(seconds, 4),
+                "status": "unfilled",
+                "method": None,
+                "ratio": None,
+                "tried": [],
+            }
+            gaps.append(report)
+            if not visible[:, m].any():
+                report["tried"].append("never measured in this take")
+                continue
+            two_sided = start > 0 and stop < n_frames
+            for name in _order(seconds, order, spline_first_s):
+                if name == "knn" and candidates.database is None:
+                    continue
+                if name in INTERPOLATORS and not two_sided:
+                    report["tried"].append(f"{name}: gap reaches the end of the take")
+                    continue
+                if name in INTERPOLATORS and seconds > max_interp_s:
+                    report["tried"].append(f"{name}: gap longer than {max_interp_s:g} s")
+                    continue
+                fill, info = candidates.fill(name, int(m), start, stop)
+                if fill is None:
+                    report["tried"].append(f"{name}: {info['reason']}")
+                    continue
+                trial = points[:, m].copy()
+                trial[start:stop] = fill
+                ratio = step_ratio(trial, start, stop, reference[m])
+                if not ratio <= limit:
+                    report["tried"].append(f"{name}: step ratio {ratio:.2f} > {limit:g}")
+                    continue
+                out[start:stop, m] = fill
+                filled[start:stop, m] = True
+                report.update(status="filled", method=name, ratio=round(ratio, 3), **info)
+                break
+    return AutoFill(out, filled, gaps)
+
+
+def describe_fill(markers: Markers, result: np.ndarray, method: str) -> list[dict]:
+    """Per-gap reports (as :func:`auto_fill` writes them) for a fill ``result [T, M, 3]`` made by one
+    ``method``: each gap is ``filled`` where every sample got a finite value, with its step ratio."""
+    reference = largest_measured_steps(markers.points, markers.visible)
+    gaps = []
+    for m in np.flatnonzero(~markers.visible.all(axis=0)):
+        for start, stop in gap_runs(~markers.visible[:, m]):
+            ok = bool(np.isfinite(result[start:stop, m]).all())
+            ratio = step_ratio(result[:, m], start, stop, reference[m]) if ok else float("nan")
+            gaps.append(
+                {
+                    "marker": markers.labels[m],
+                    "marker_index": int(m),
+                    "first_frame": start,
+                    "last_frame": stop - 1,
+                    "frames": stop - start,
+                    "seconds": round((stop - start) / markers.fps, 4),
+                    "status": "filled" if ok else "unfilled",
+                    "method": method if ok else None,
+                    "ratio": round(ratio, 3) if np.isfinite(ratio) else None,
+                    "tried": [],
+                }
+            )
+    return gaps
+
+
+def summary_table(gaps: Sequence[dict], limit: float = 2.0) -> str:
+    """A short text table of per-gap reports: gaps, samples and worst step ratio per method, then the
+    unfilled gaps (the ten longest) with the last reason each candidate gave."""
+    by: dict[str, list[dict]] = {}
+    for g in gaps:
+        by.setdefault(g["method"] or "unfilled", []).append(g)
+    lines = [f"{'method':10s} {'gaps':>6s} {'samples':>8s} {'worst step ratio':>17s}"]
+    for name in [*CANDIDATES, *sorted(set(by) - set(CANDIDATES) - {"unfilled"}), "unfilled"]:
+        rows = by.get(name)
+        if not rows:
+            continue
+        ratios = [g["ratio"] for g in rows if g["ratio"] is not None]
+        worst = f"{max(ratios):.2f}" if ratios else "-"
+        flag = " (over the limit)" if ratios and max(ratios) > limit else ""
+        lines.append(f"{name:10s} {len(rows):6d} {sum(g['frames'] for g in rows):8d} {worst:>17s}{flag}")
+    unfilled = sorted(by.get("unfilled", []), key=lambda g: -g["frames"])
+    for g in unfilled[:10]:
+        why = g["tried"][-1] if g["tried"] else "no candidate"
+        lines.append(
+            f"  unfilled {g['marker']} frames {g['first_frame']}-{g['last_frame']} ({g['seconds']:g} s): {why}"
+        )
+    if len(unfilled) > 10:
+        lines.append(f"  … and {len(unfilled) - 10} shorter unfilled gaps")
+    return "\n".join(lines)
+
+
+def plot_fills(
+    path: str | os.PathLike,
+    markers: Markers,
+    points: np.ndarray,
+    gaps: Sequence[dict],
+    max_markers: int = 12,
+) -> int:
+    """Write a PNG of the filled markers' x, y, z (cm) against time (s): measured samples in colour, filled
+    spans highlighted green, spans left missing shaded red; at most ``max_markers`` markers (most filled
+    samples first). Returns the number of markers drawn."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    touched: dict[int, int] = {}
+    for g in gaps:
+        touched[g["marker_index"]] = touched.get(g["marker_index"], 0) + g["frames"] * (g["status"] == "filled")
+    chosen = sorted(touched, key=lambda m: -touched[m])[:max_markers]
+    chosen = sorted(chosen) or [0]
+    t = np.arange(markers.n_frames) / markers.fps
+    fig, axes = plt.subplots(len(chosen), 1, figsize=(11, 1.8 * len(chosen) + 0.6), sharex=True, squeeze=False)
+    for ax, m in zip(axes[:, 0], chosen):
+        measured = np.where(markers.visible[:, m, None], points[:, m], np.nan)
+        for k, colour in enumerate(("tab:red", "tab:green", "tab:blue")):
+            ax.plot(t, measured[:, k], color=colour, lw=1.0, label="xyz"[k] if m == chosen[0] else None)
+            ax.plot(t, points[:, m, k], color=colour, lw=1.0, ls=":", alpha=0.9)
+        for g in gaps:
+            if g["marker_index"] != m:
+                continue
+            span = (g["first_frame"] / markers.fps, (g["last_frame"] + 1) / markers.fps)
+            ok = g["status"] == "filled"
+            ax.axvspan(*span, color="tab:green" if ok else "tab:red", alpha=0.18 if ok else 0.12, lw=0)
+        ax.set_ylabel(markers.labels[m], rotation=0, ha="right", fontsize=8)
+        ax.tick_params(labelsize=7)
+    axes[0, 0].legend(loc="upper right", fontsize=7, ncol=3)
+    axes[-1, 0].set_xlabel("time (s); solid = measured, dotted = filled; green = filled span, red = left missing")
+    more = len(touched) - len(chosen)
+    fig.suptitle(
+        f"{markers.name or 'take'}: filled markers (cm)" + (f"; {more} more markers not shown" if more > 0 else ""),
+        fontsize=10,
+    )
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return len(chosen)
+
+
+@register(
+    "auto",
+    "points",
+    help="per gap: rigid-body, pca, knn (with database=), spline or lerp, the first whose fill passes the step "
+    "check (worst filled step <= limit x the marker's largest measured step); gaps nothing fills plausibly are "
+    "interpolated linearly with a warning here (mocapnet clean leaves them missing)",
+)
+def _auto(
+    context: MethodContext,
+    database: str | None = None,
+    limit: float = 2.0,
+    max_interp_s: float = 0.5,
+    spline_first_s: float = 0.1,
+) -> Callable[[Markers], np.ndarray]:
+    """``auto`` for the harness interface (every sample filled): unfilled gaps are interpolated linearly with
+    a warning naming them."""
+
+    def clean(noisy: Markers) -> np.ndarray:
+        got = auto_fill(noisy, database, limit, max_interp_s, spline_first_s)
+        return fill_remaining_linear(noisy, got.points, "auto found no plausible fill")
+
+    return clean

@@ -1,0 +1,182 @@
+"""Rigid-body (relational) gap filling: carry a missing marker with three or more visible markers that stay
+rigid with it — the "rigid body fill" of Vicon Nexus and Qualisys Track Manager.
+
+For a gap ``[a, b)`` of marker ``i`` (frames ``a .. b-1`` missing):
+
+1. **Partners.** Markers visible in every frame from ``a - 1`` to ``b`` (the gap and the measured frames at
+   its edges) whose distance to ``i`` keeps a standard deviation of at most ``max_std_cm`` over the frames
+   where both are measured (:func:`distance_spread`). The ``max_partners`` most rigid are used; at least
+   ``min_partners`` (3) that are not collinear (their second singular value at least ``min_spread_cm``).
+2. **Transform.** For each edge frame ``r`` (``a - 1`` and/or ``b``), the rigid transform taking the
+   partners' configuration at ``r`` to their configuration at each gap frame ``t`` (weighted Kabsch:
+   least-squares rotation via SVD, reflection excluded) carries ``i``'s measured position at ``r`` to frame ``t``.
+3. **Blend.** With both edges measured, the two carried tracks are blended linearly in time (weight of the
+   ``b`` edge ``(t - a + 1) / (b - a + 1)``), so the fill meets the measured samples at both edges; a gap
+   at the start or end of the take uses its one edge.
+
+The fit residual (RMS distance between the partners and their carried reference configuration over the
+gap, cm) measures how rigid the partners really stayed; it is returned with each fill.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from mocapnet.methods.registry import MethodContext, register
+from mocapnet.motion import Markers
+
+_SPREAD_FRAMES = 1000  # at most this many evenly spaced frames enter the distance spread
+_MIN_TOGETHER = 10  # frames two markers must share for their distance spread to count
+_WEIGHT_FLOOR_CM = 0.5  # partner weights 1 / (spread² + floor²): no partner dominates on noise alone
+
+
+def gap_runs(missing: np.ndarray) -> list[tuple[int, int]]:
+    """``[start, stop)`` of every run of True in a 1-D boolean array."""
+    edges = np.diff(np.concatenate([[0], missing.astype(np.int8), [0]]))
+    return list(zip(np.flatnonzero(edges == 1).tolist(), np.flatnonzero(edges == -1).tolist()))
+
+
+def distance_spread(points: np.ndarray, visible: np.ndarray) -> np.ndarray:
+    """Standard deviation (cm) of the distance between every pair of markers over the frames where both
+    are measured, ``[M, M]`` (at most 1000 evenly spaced frames of ``points [T, M, 3]`` cm; NaN for pairs
+    measured together in fewer than 10 frames; 0 on the diagonal)."""
+    step = max(1, len(points) // _SPREAD_FRAMES)
+    pts, vis = np.nan_to_num(points[::step]), visible[::step]
+    n = vis.astype(np.float64)
+    both = np.einsum("ti,tj->ij", n, n)
+    total, total2 = np.zeros(both.shape), np.zeros(both.shape)
+    for t in range(len(pts)):  # one frame at a time keeps memory at [M, M]
+        d = np.linalg.norm(pts[t, :, None] - pts[t, None], axis=-1)
+        w = np.outer(n[t], n[t])
+        total += w * d
+        total2 += w * d * d
+    enough = both >= _MIN_TOGETHER
+    safe = np.where(enough, both, 1.0)
+    var = np.maximum(total2 / safe - (total / safe) ** 2, 0.0)
+    return np.where(enough, np.sqrt(var), np.nan)
+
+
+def kabsch(source: np.ndarray, target: np.ndarray, weights: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Rotations ``[L, 3, 3]`` and translations ``[L, 3]`` minimising ``Σ_k w_k |R s_k + d - t_k|²`` from one
+    point set ``source [K, 3]`` to each of ``target [L, K, 3]`` (proper rotations: reflections excluded;
+    ``weights [K]`` default equal)."""
+    w = np.ones(len(source)) if weights is None else np.asarray(weights, dtype=np.float64)
+    w = w / w.sum()
+    src_c = w @ source
+    tgt_c = np.einsum("k,lkj->lj", w, target)
+    h = np.einsum("k,ki,lkj->lij", w, source - src_c, target - tgt_c[:, None])  # [L, 3, 3]
+    u, _, vt = np.linalg.svd(h)
+    d = np.sign(np.linalg.det(np.einsum("lji,lkj->lik", vt, u)))
+    d[d == 0] = 1.0
+    fix = np.ones((len(h), 3))
+    fix[:, 2] = d
+    rot = np.einsum("lji,lj,lkj->lik", vt, fix, u)  # V diag(1, 1, d) Uᵀ
+    return rot, tgt_c - np.einsum("lij,j->li", rot, src_c)
+
+
+@dataclass(frozen=True)
+class RigidFill:
+    """A rigid-body fill of one gap: ``points [b - a, 3]`` cm, the partner markers used and the RMS fit
+    residual of the partners over the gap (cm)."""
+
+    points: np.ndarray
+    partners: tuple[int, ...]
+    residual_cm: float
+
+
+def rigid_partners(
+    visible: np.ndarray,
+    spread: np.ndarray,
+    marker: int,
+    start: int,
+    stop: int,
+    max_std_cm: float = 2.0,
+    max_partners: int = 6,
+) -> np.ndarray:
+    """Indices of the markers that stay rigid with ``marker`` (distance spread ≤ ``max_std_cm``) and are
+    visible in every frame from ``start - 1`` to ``stop`` (clipped to the take), most rigid first."""
+    lo, hi = max(start - 1, 0), min(stop + 1, len(visible))
+    through = visible[lo:hi].all(axis=0)
+    through[marker] = False
+    row = spread[marker]
+    ok = through & np.isfinite(row) & (row <= max_std_cm)
+    idx = np.flatnonzero(ok)
+    return idx[np.argsort(row[idx], kind="stable")][:max_partners]
+
+
+def rigid_fill_gap(
+    points: np.ndarray,
+    visible: np.ndarray,
+    spread: np.ndarray,
+    marker: int,
+    start: int,
+    stop: int,
+    max_std_cm: float = 2.0,
+    max_partners: int = 6,
+    min_partners: int = 3,
+    min_spread_cm: float = 1.0,
+) -> RigidFill | None:
+    """Rigid-body fill of ``points[start:stop, marker]`` (module docstring); ``points [T, M, 3]`` cm,
+    ``visible [T, M]``, ``spread [M, M]`` from :func:`distance_spread`. None when the gap has no measured
+    edge or fewer than ``min_partners`` non-collinear rigid partners."""
+    t_len = len(points)
+    edges = [r for r in (start - 1, stop) if 0 <= r < t_len]
+    if not edges:
+        return None
+    partners = rigid_partners(visible, spread, marker, start, stop, max_std_cm, max_partners)
+    if len(partners) < min_partners:
+        return None
+    # Weight each partner by how rigid it stayed: 1 / (spread² + (0.5 cm)²).
+    weights = 1.0 / (spread[marker, partners] ** 2 + _WEIGHT_FLOOR_CM**2)
+    tracks, residuals = [], []
+    frames = points[start:stop][:, partners]  # [L, K, 3]
+    for r in edges:
+        ref = points[r, partners]
+        sv = np.linalg.svd(ref - ref.mean(axis=0), compute_uv=False)
+        if sv[1] < min_spread_cm:
+            return None
+        rot, shift = kabsch(ref, frames, weights)
+        tracks.append(np.einsum("lij,j->li", rot, points[r, marker]) + shift)
+        carried = np.einsum("lij,kj->lki", rot, ref) + shift[:, None]
+        residuals.append(np.sqrt(np.mean(np.sum((carried - frames) ** 2, axis=-1))))
+    if len(tracks) == 1:
+        track = tracks[0]
+    else:
+        w = (np.arange(start, stop) - start + 1) / (stop - start + 1)
+        track = (1.0 - w)[:, None] * tracks[0] + w[:, None] * tracks[1]
+    return RigidFill(track, tuple(int(p) for p in partners), float(max(residuals)))
+
+
+def rigid_fill(points: np.ndarray, visible: np.ndarray, max_std_cm: float = 2.0, max_partners: int = 6) -> np.ndarray:
+    """Rigid-body fill of every gap of ``points [T, M, 3]`` (cm; ``visible [T, M]``) that has three rigid
+    partners visible throughout it. Returns ``[T, M, 3]`` cm: visible samples unchanged, NaN where no rigid
+    fill was possible."""
+    points = np.where(visible[..., None], points, np.nan)
+    out = points.copy()
+    spread = distance_spread(points, visible)
+    for m in np.flatnonzero(~visible.all(axis=0)):
+        for start, stop in gap_runs(~visible[:, m]):
+            fill = rigid_fill_gap(points, visible, spread, int(m), start, stop, max_std_cm, max_partners)
+            if fill is not None:
+                out[start:stop, m] = fill.points
+    return out
+
+
+@register(
+    "rigid",
+    "points",
+    help="rigid-body fill from >= 3 visible markers rigid with the missing one (Kabsch, blended at both "
+    "edges); gaps it cannot fill are interpolated linearly with a warning; options max_std_cm, max_partners",
+)
+def _rigid(context: MethodContext, max_std_cm: float = 2.0, max_partners: int = 6) -> Callable[[Markers], np.ndarray]:
+    """``rigid`` for the harness: gaps without rigid partners are filled linearly with a warning."""
+    from mocapnet.methods.pca import fill_remaining_linear
+
+    def clean(noisy: Markers) -> np.ndarray:
+        filled = rigid_fill(noisy.points, noisy.visible, max_std_cm, max_partners)
+        return fill_remaining_linear(noisy, filled, "no three rigid partners visible through the gap")
+
+    return clean
