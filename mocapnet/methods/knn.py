@@ -782,3 +782,7 @@ def _knn(
         return fill_remaining_linear(noisy, filled, "knn left a gap unfilled (too long or no visible reliable marker)")
 
     return clean
+
+
+# The joint-space ``knn`` (BVH) is registered by ``knn_angles``, which builds on this module.
+from mocapnet.methods import knn_angles  # noqa: E402, F401
