@@ -1,18 +1,32 @@
-"""C3D marker data through ezc3d: ``read_c3d(path) -> Markers`` and ``write_c3d(path, markers)``.
+"""C3D marker data: ``read_c3d(path) -> Markers`` and ``write_c3d(path, markers, source=...)``.
 
-A sample is missing when any coordinate is NaN, when all three are exactly zero, or when its residual is
-negative (the C3D convention). Positions are converted to centimetres from ``POINT:UNITS``.
+Reading: the file's header and parameter section are checked first (``c3d_raw``: a damaged section or a data
+block shorter than the header says is refused at once); the data are then read with ezc3d, or, for files
+ezc3d refuses (MIPS/SGI processor, PhoeniX's float ``ANALOG:OFFSET``), with the PyPI ``c3d`` package.
+``Markers.reader`` says which. A sample is missing when any coordinate is NaN, when all three are exactly
+zero, or when its residual is negative (the C3D convention). Positions are converted to centimetres from
+``POINT:UNITS``.
+
+Writing with ``source=``: the source file's bytes are copied and only the filled samples are replaced, so
+every point (model outputs included), residual, analog channel, event, parameter group, the header's first
+frame and the point scale stay exactly as they were; filled samples get residual 0 ("computed, not
+measured"). Without ``source`` a new file holds the markers only.
 """
 
 from __future__ import annotations
 
 import os
 import re
+import tempfile
+import warnings
+from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
 
-from mocapnet.io.atomic import MocapFileError, atomic_output
+from mocapnet.io.atomic import MocapFileError, atomic_output, check_output_path
+from mocapnet.io.c3d_raw import C3DLayout, cut_to_present, decode_points, patch_points, read_layout
 from mocapnet.motion import Markers
 
 _UNIT_TO_CM = {"mm": 0.1, "cm": 1.0, "m": 100.0, "dm": 10.0, "in": 2.54, "inch": 2.54}
@@ -20,35 +34,138 @@ _UNIT_TO_CM = {"mm": 0.1, "cm": 1.0, "m": 100.0, "dm": 10.0, "in": 2.54, "inch":
 _MODEL_OUTPUT_GROUPS = ("ANGLES", "FORCES", "MOMENTS", "POWERS", "SCALARS", "REACTIONS", "MODELED_MARKERS")
 # Plug-in-Gait virtual points: segment code + Origin/Anterior/Lateral/Proximal axis point (PELO, LFEA, …).
 _PIG_VIRTUAL = re.compile(r"^(PEL|[LR](FE|TI|FO|TO|CL|HU|RA|HN)|TRX|HED|CSP)[OALP]$|^CENTRE", re.IGNORECASE)
+READERS = ("ezc3d", "c3d")
 
 
-def _param(group: dict, name: str, default=None):
-    entry = group.get(name)
-    if entry is None:
-        return default
-    return entry.get("value", default)
+@dataclass(frozen=True, eq=False)
+class C3DMarkers(Markers):
+    """``Markers`` read from a C3D file; ``reader`` says what read it: ``"ezc3d"``, or ``"c3d"`` (the PyPI
+    package, for the files ezc3d refuses)."""
+
+    reader: str = ""
 
 
-def _load(path: Path):
+class TruncatedC3DWarning(UserWarning):
+    """A C3D file's data block holds fewer frames than its header says; the frames present were read."""
+
+
+@dataclass(frozen=True)
+class C3DContent:
+    """Every point of one C3D file as read, before markers are picked.
+
+    ``xyz [T, P, 3]`` in the file's units (``units``), ``residuals [T, P]`` (negative = invalid), ``labels``
+    of all ``P`` points in file order, ``rate`` in Hz, ``reader`` one of ``READERS``.
+    """
+
+    path: Path
+    reader: str
+    layout: C3DLayout
+    labels: tuple[str, ...]
+    xyz: np.ndarray
+    residuals: np.ndarray
+    rate: float
+    units: str
+
+    @property
+    def n_frames(self) -> int:
+        return self.xyz.shape[0]
+
+    @cached_property
+    def visible(self) -> np.ndarray:
+        """``[T, P]`` bool: finite, not exactly (0, 0, 0), residual not negative."""
+        xyz = self.xyz
+        return np.isfinite(xyz).all(axis=2) & ~(xyz == 0).all(axis=2) & (self.residuals >= 0)
+
+    def marker_indices(self) -> np.ndarray:
+        """File indices of the physical markers: every point except model outputs listed under
+        ``POINT:ANGLES/FORCES/MOMENTS/POWERS/SCALARS/REACTIONS/MODELED_MARKERS``, Plug-in-Gait virtual axis
+        points (``PELO``, ``LFEA``, …, ``Centre*``) and unlabelled ``*N`` points."""
+        model = {s for g in _MODEL_OUTPUT_GROUPS for s in self.layout.strings("POINT", g)}
+        return np.array(
+            [
+                i
+                for i, lab in enumerate(self.labels)
+                if lab not in model
+                and not lab.rsplit(":", 1)[-1].startswith("*")
+                and not _PIG_VIRTUAL.match(lab.rsplit(":", 1)[-1])
+            ],
+            dtype=int,
+        )
+
+
+def _point_labels(layout: C3DLayout, n_points: int) -> tuple[str, ...]:
+    """``POINT:LABELS`` then ``LABELS2``, ``LABELS3``, … (files with over 255 points), padded to ``n_points``."""
+    labels = list(layout.strings("POINT", "LABELS"))
+    k = 2
+    while ("POINT", f"LABELS{k}") in layout.parameters:
+        labels += layout.strings("POINT", f"LABELS{k}")
+        k += 1
+    labels += [f"point{i}" for i in range(len(labels), n_points)]
+    return tuple(labels[:n_points])
+
+
+def _read_ezc3d(path: Path) -> tuple[np.ndarray, np.ndarray]:
     import ezc3d
 
-    if not path.exists():
-        raise MocapFileError(f"{path}: no such file")
-    if path.stat().st_size == 0:
-        raise MocapFileError(f"{path}: file is empty")
-    with open(path, "rb") as fh:
-        header = fh.read(512)
-    if len(header) < 512 or header[1] != 0x50:
-        raise MocapFileError(f"{path}: not a C3D file (byte 2 of the header is not 0x50)")
+    # Never ignore_bad_formatting: on some broken files it crashes the whole process (segfault).
+    c3d = ezc3d.c3d(str(path), extract_forceplat_data=False)
+    points = np.asarray(c3d["data"]["points"], dtype=np.float64)  # [4, P, T]
+    residuals = np.asarray(c3d["data"]["meta_points"]["residuals"], dtype=np.float64)  # [1, P, T]
+    return points[:3].transpose(2, 1, 0), residuals[0].T
+
+
+def _read_c3d_package(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    import c3d
+
+    with warnings.catch_warnings(), open(path, "rb") as fh:
+        warnings.simplefilter("ignore")
+        frames = [points[:, :4] for _, points, _ in c3d.Reader(fh).read_frames()]
+    if not frames:
+        return np.zeros((0, 0, 3)), np.zeros((0, 0))
+    data = np.stack(frames).astype(np.float64)  # [T, P, 4]: x, y, z, residual (-1 = invalid)
+    return data[..., :3], data[..., 3]
+
+
+def _one_line(exc: BaseException) -> str:
+    return " ".join(str(exc).split()) or type(exc).__name__
+
+
+def load_c3d(path: str | os.PathLike, *, allow_truncated: bool = False) -> C3DContent:
+    """Read every point of a C3D file: ezc3d first, the PyPI ``c3d`` package for files ezc3d refuses.
+
+    A data block shorter than the header says raises ``MocapFileError`` naming both frame counts, or with
+    ``allow_truncated`` warns (``TruncatedC3DWarning``) and reads the frames present.
+    """
+    path = Path(path)
+    layout = read_layout(path)
+    if layout.truncated:
+        msg = (
+            f"{path}: truncated C3D file: the header says {layout.frames} frames but the data block holds "
+            f"{layout.frames_present}"
+        )
+        if not allow_truncated or layout.frames_present == 0:
+            raise MocapFileError(msg + ("" if allow_truncated else " (--allow-truncated reads the frames present)"))
+        warnings.warn(msg + "; reading those", TruncatedC3DWarning, stacklevel=2)
     try:
-        # Never ignore_bad_formatting: on some broken files it crashes the whole process (segfault).
-        return ezc3d.c3d(str(path), extract_forceplat_data=False)
-    except (RuntimeError, OSError, ValueError, IndexError) as exc:
-        msg = str(exc).replace("\n", " ").strip() or type(exc).__name__
-        raise MocapFileError(f"{path}: ezc3d cannot read this C3D file: {msg}") from exc
+        xyz, residuals = _read_ezc3d(path)
+        reader = "ezc3d"
+    except Exception as exc:  # ezc3d raises RuntimeError, OSError, ValueError, IndexError, …
+        try:
+            xyz, residuals = _read_c3d_package(path)
+            reader = "c3d"
+        except Exception as exc2:  # a third-party parser: anything it raises means it cannot read the file
+            raise MocapFileError(
+                f"{path}: ezc3d cannot read this C3D file: {_one_line(exc)}; nor can the c3d package: {_one_line(exc2)}"
+            ) from exc
+    present = min(xyz.shape[0], layout.frames_present)
+    rate = layout.number("POINT", "RATE") or layout.header_rate
+    units = (layout.strings("POINT", "UNITS") or ["mm"])[0].strip().lower() or "mm"
+    return C3DContent(
+        path, reader, layout, _point_labels(layout, xyz.shape[1]), xyz[:present], residuals[:present], rate, units
+    )
 
 
-def read_c3d(path: str | os.PathLike, markers_only: bool = True) -> Markers:
+def read_c3d(path: str | os.PathLike, markers_only: bool = True, *, allow_truncated: bool = False) -> C3DMarkers:
     """Read marker trajectories from a C3D file.
 
     Parameters
@@ -57,68 +174,98 @@ def read_c3d(path: str | os.PathLike, markers_only: bool = True) -> Markers:
     markers_only : drop model outputs listed under ``POINT:ANGLES/FORCES/MOMENTS/POWERS/SCALARS/
         MODELED_MARKERS``, Plug-in-Gait virtual axis points (``PELO``, ``LFEA``, …, ``Centre*``) and the
         unlabelled ``*N`` points, keeping physical markers only.
+    allow_truncated : read the complete frames of a file whose data block is shorter than its header says
+        (with a ``TruncatedC3DWarning``) instead of raising.
 
     Returns
     -------
-    Markers with ``points [T, M, 3]`` in cm (NaN where missing), ``visible [T, M]``, labels and rate in Hz.
+    C3DMarkers (a ``Markers``) with ``points [T, M, 3]`` in cm (NaN where missing), ``visible [T, M]``,
+    labels, rate in Hz and ``reader`` (``"ezc3d"`` or ``"c3d"``, the PyPI package used for files ezc3d refuses).
 
     Raises
     ------
-    MocapFileError naming the file when ezc3d rejects it or it holds no usable marker data.
+    MocapFileError naming the file when no reader accepts it, it is truncated, or it holds no usable marker
+    data.
     """
     path = Path(path)
-    c3d = _load(path)
-    point = c3d["parameters"].get("POINT", {})
-    labels = [str(s).strip() for s in (_param(point, "LABELS", []) or [])]
-    data = np.asarray(c3d["data"]["points"], dtype=np.float64)  # [4, M, T]
-    if data.shape[1] == 0 or data.shape[2] == 0:
+    content = load_c3d(path, allow_truncated=allow_truncated)
+    if content.xyz.shape[1] == 0 or content.n_frames == 0:
         raise MocapFileError(f"{path}: no POINT data (0 markers or 0 frames)")
-    n_points = data.shape[1]
-    if len(labels) < n_points:
-        labels += [f"point{i}" for i in range(len(labels), n_points)]
-    labels = labels[:n_points]
-    rate = float((_param(point, "RATE", None) or [0.0])[0])
-    if not rate > 0:
-        rate = float(c3d["header"]["points"]["frame_rate"])
-    if not rate > 0:
-        raise MocapFileError(f"{path}: point rate is {rate}, expected a positive number of Hz")
-    units = str((_param(point, "UNITS", None) or ["mm"])[0]).strip().lower()
-    if units not in _UNIT_TO_CM:
-        raise MocapFileError(f"{path}: unknown POINT:UNITS {units!r} (expected one of {sorted(_UNIT_TO_CM)})")
-
-    xyz = data[:3].transpose(2, 1, 0) * _UNIT_TO_CM[units]  # [T, M, 3]
-    residuals = np.asarray(c3d["data"]["meta_points"]["residuals"], dtype=np.float64)[0].T  # [T, M]
-    visible = np.isfinite(xyz).all(axis=2) & ~(xyz == 0).all(axis=2) & (residuals >= 0)
-
-    keep = np.arange(n_points)
-    if markers_only:
-        model = {str(s).strip() for g in _MODEL_OUTPUT_GROUPS for s in (_param(point, g, []) or [])}
-        keep = np.array(
-            [
-                i
-                for i, lab in enumerate(labels)
-                if lab not in model
-                and not lab.rsplit(":", 1)[-1].startswith("*")
-                and not _PIG_VIRTUAL.match(lab.rsplit(":", 1)[-1])
-            ],
-            dtype=int,
-        )
-        if keep.size == 0:
-            raise MocapFileError(f"{path}: all {n_points} points are model outputs or unlabelled; no markers")
-    xyz, visible = xyz[:, keep], visible[:, keep]
+    if not content.rate > 0:
+        raise MocapFileError(f"{path}: point rate is {content.rate}, expected a positive number of Hz")
+    if content.units not in _UNIT_TO_CM:
+        raise MocapFileError(f"{path}: unknown POINT:UNITS {content.units!r} (expected one of {sorted(_UNIT_TO_CM)})")
+    keep = content.marker_indices() if markers_only else np.arange(len(content.labels))
+    if keep.size == 0:
+        raise MocapFileError(f"{path}: all {len(content.labels)} points are model outputs or unlabelled; no markers")
+    visible = content.visible[:, keep]
     if not visible.any():
         raise MocapFileError(
             f"{path}: every marker sample is missing (NaN, exactly zero or negative residual): no usable data"
         )
-    return Markers(xyz, visible, [labels[i] for i in keep], rate, name=path.name)
+    xyz = content.xyz[:, keep] * _UNIT_TO_CM[content.units]
+    return C3DMarkers(xyz, visible, [content.labels[i] for i in keep], content.rate, path.name, content.reader)
 
 
-def write_c3d(path: str | os.PathLike, markers: Markers, inputs: tuple = ()) -> None:
-    """Write markers to a new C3D file (positions in mm, missing samples as NaN with residual -1).
+def _match_columns(content: C3DContent, markers: Markers) -> np.ndarray:
+    """The file's point index of each marker, by label: the k-th marker called L is the file's k-th point
+    called L, among the physical markers first (as ``read_c3d`` picks them), else among all points."""
+    for candidates in (content.marker_indices(), np.arange(len(content.labels))):
+        by_label: dict[str, list[int]] = {}
+        for i in candidates:
+            by_label.setdefault(content.labels[i], []).append(int(i))
+        seen: dict[str, int] = {}
+        index = []
+        for label in markers.labels:
+            k = seen.get(label, 0)
+            seen[label] = k + 1
+            if k >= len(by_label.get(label, ())):
+                break
+            index.append(by_label[label][k])
+        else:
+            return np.array(index, dtype=int)
+    missing = next(lab for lab in markers.labels if lab not in content.labels)
+    raise MocapFileError(f"{content.path}: has no point labelled {missing!r} to write the filled samples into")
 
-    The file is written to a temporary name and moved into place only when complete; ``inputs`` lists
-    source paths the output must not overwrite.
-    """
+
+def _write_edited(path: Path, markers: Markers, inputs: tuple, source: Path, filled: np.ndarray | None) -> None:
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", TruncatedC3DWarning)
+        content = load_c3d(source, allow_truncated=True)
+    if markers.n_frames != content.n_frames:
+        raise MocapFileError(
+            f"{source}: holds {content.n_frames} frames but the markers to write have {markers.n_frames}"
+        )
+    if content.units not in _UNIT_TO_CM:
+        raise MocapFileError(f"{source}: unknown POINT:UNITS {content.units!r}; cannot convert filled samples")
+    index = _match_columns(content, markers)
+    if filled is None:
+        filled = markers.visible & ~content.visible[:, index]
+    filled = np.asarray(filled)
+    if filled.dtype != bool or filled.shape != markers.visible.shape:
+        raise ValueError(
+            f"filled must be a bool [T, M] = {markers.visible.shape} array, got {filled.dtype} {filled.shape}"
+        )
+    if (filled & ~markers.visible).any():
+        t, m = np.argwhere(filled & ~markers.visible)[0]
+        raise ValueError(
+            f"{markers.name or 'markers'}: filled sample at frame {t + 1}, {markers.labels[m]} has no value"
+        )
+    raw = source.read_bytes()
+    layout = content.layout
+    stored, _ = decode_points(layout, raw)
+    measured = content.visible
+    if stored.shape != content.xyz.shape or not np.allclose(stored[measured], content.xyz[measured], rtol=1e-6):
+        raise MocapFileError(
+            f"{source}: cannot edit this file in place: its data block does not decode to what {content.reader} read"
+        )
+    values = markers.points / _UNIT_TO_CM[content.units]
+    edited = cut_to_present(layout, patch_points(layout, raw, values, filled, index))
+    with atomic_output(path, (*inputs, source)) as tmp:
+        tmp.write_bytes(edited)
+
+
+def _write_new(path: Path, markers: Markers, inputs: tuple) -> None:
     import ezc3d
 
     c3d = ezc3d.c3d()
@@ -129,5 +276,48 @@ def write_c3d(path: str | os.PathLike, markers: Markers, inputs: tuple = ()) -> 
     pts[:3] = (markers.points * 10.0).transpose(2, 1, 0)
     pts[:3][:, ~markers.visible.T] = np.nan
     c3d["data"]["points"] = pts
-    with atomic_output(path, inputs) as tmp:
-        c3d.write(str(tmp))
+    # ezc3d appends ".c3d" to any other name, so it writes in a private folder; the bytes then go through
+    # the hidden .partial file beside the output.
+    with tempfile.TemporaryDirectory(prefix="mocapnet-c3d-") as folder, atomic_output(path, inputs) as tmp:
+        staged = Path(folder) / "out.c3d"
+        c3d.write(str(staged))
+        tmp.write_bytes(staged.read_bytes())
+
+
+def write_c3d(
+    path: str | os.PathLike,
+    markers: Markers,
+    inputs: tuple = (),
+    *,
+    source: str | os.PathLike | None = None,
+    filled: np.ndarray | None = None,
+) -> None:
+    """Write markers to a C3D file, atomically (a hidden ``.NAME.*.partial`` file moved into place).
+
+    Parameters
+    ----------
+    path : the output ``.c3d`` file; refused (``MocapFileError``, nothing written) when empty, a directory,
+        one of ``inputs`` / ``source``, or in a folder that cannot be written.
+    markers : ``points [T, M, 3]`` in cm.
+    inputs : source paths the output must not overwrite.
+    source : the C3D file ``markers`` was read from. Given, the output is a copy of that file in which only
+        the ``filled`` samples are replaced (positions converted back to the file's ``POINT:UNITS``,
+        residual 0 = computed, not measured): every other point sample, residual, point (model outputs
+        included), analog channel, event, parameter group and the header stay byte for byte as they were.
+        ``markers`` columns are matched to the file's points by label (the k-th marker called L is the
+        file's k-th point called L), so ``markers`` may be any subset of the points, in any order. In an
+        integer C3D file (``POINT:SCALE`` > 0) filled positions are rounded to the scale. A truncated source
+        gives a consistent file with its complete frames.
+    filled : bool ``[T, M]``, the samples to write; default: visible in ``markers`` but missing in
+        ``source``. Each must have a value in ``markers``.
+
+    Without ``source``: a new file with the markers only (positions in mm, missing samples NaN, residual -1).
+    """
+    check_output_path(path, (*inputs, *(() if source is None else (source,))))
+    path = Path(path)
+    if source is None:
+        if filled is not None:
+            raise ValueError("filled= needs source=: a new C3D file has no measured samples to keep")
+        _write_new(path, markers, inputs)
+    else:
+        _write_edited(path, markers, tuple(inputs), Path(source), filled)
