@@ -20,6 +20,9 @@ $MOCAPNET_DATA, default ../shared/data), a folder of .bvh/.bvh.gz files, or a fo
 corruptions: angular-0.1|0.5|0.9, spatial-0.1cm|0.5cm|1cm|3cm, spatial-ends, uniform-0.5, bias-const, bias-sine,
 gaps, gaps-long, noise+gaps, segment-gap:SEG:SECONDS (SEG: left-arm right-arm arms left-leg right-leg legs),
 marker-gap:SECONDS. Methods: see `mocapnet methods`.
+Clips are scored on Dask worker processes (one per core, 1 torch/BLAS thread each; --workers 0 = in this
+process, --scheduler = an existing cluster); methods are built and tuned once, and every clip's corruption is
+seeded by (corpus, file, repeat, corruption), so the scores do not depend on where they ran.
 The table shows the mean over clips and repeats of each clip's error; 'ratio' divides the headline error by
 that of the best Gaussian baseline (noise), lerp+gaussian-58ms (noise+gaps) or lerp (gaps, point data)."""
 
@@ -63,6 +66,7 @@ def _evaluate(args: argparse.Namespace) -> int:
         progress=not args.quiet,
         style=args.style,
     )
+        parallel=_parallel(args),
     where = f"fold {ev.fold} test clips" if ev.fold is not None else "all clips"
     n_files = len({r["file"] for r in ev.rows})
     print(f"{ev.data}: {ev.corruption}, {n_files} files ({where}), {ev.repeats} repeats")
@@ -195,6 +199,7 @@ def build_parser() -> argparse.ArgumentParser:
     cl.add_argument("--database", help="C3D: folder of clean C3D takes of the same marker set (knn)")
     cl.add_argument("--report", help="write one row per file: .csv, or .json with each file's details")
     cl.add_argument("--force", action="store_true", help="folder: clean again files whose output is up to date")
+    _add_parallel_args(ev)
     cl.add_argument("--quiet", action="store_true", help="no progress bar")
     _add_parallel_args(cl)
     cl.set_defaults(func=_clean)

@@ -20,14 +20,38 @@ def rotation_sequence(skeleton: Skeleton, joint: int) -> tuple[str, np.ndarray]:
     return "".join(a for _, a in rot), np.array([c for c, _ in rot], dtype=int)
 
 
+def axis_rotations(axis: str, angles_deg: np.ndarray) -> np.ndarray:
+    """Rotation matrices ``[..., 3, 3]`` about ``axis`` (``"X"``, ``"Y"`` or ``"Z"``) by ``angles_deg [...]``."""
+    i = "XYZ".index(axis.upper())
+    j, k = (i + 1) % 3, (i + 2) % 3
+    rad = np.radians(angles_deg)
+    cos, sin = np.cos(rad), np.sin(rad)
+    out = np.zeros(rad.shape + (3, 3))
+    out[..., i, i] = 1.0
+    out[..., j, j] = cos
+    out[..., k, k] = cos
+    out[..., j, k] = -sin
+    out[..., k, j] = sin
+    return out
+
+
+def euler_to_matrix(angles_deg: np.ndarray, seq: str) -> np.ndarray:
+    """Rotation matrices ``[..., 3, 3]`` of intrinsic Euler angles ``[..., len(seq)]`` (degrees, upper-case
+    ``seq`` as in a BVH file: ``"ZXY"`` → ``Rz @ Rx @ Ry``); equals scipy's ``Rotation.from_euler(seq, …,
+    degrees=True).as_matrix()`` to rounding, for any leading shape at once."""
+    out = axis_rotations(seq[0], angles_deg[..., 0])
+    for n, axis in enumerate(seq[1:], start=1):
+        out = out @ axis_rotations(axis, angles_deg[..., n])
+    return out
+
+
 def local_rotations(skeleton: Skeleton, channels: np.ndarray) -> np.ndarray:
-    """Local rotation matrices ``[T, J, 3, 3]`` from channels ``[T, C]`` (degrees)."""
+    """Local rotation matrices ``[T, J, 3, 3]`` from channels ``[T, C]`` (degrees); joints without rotation
+    channels get the identity. All joints sharing an axis order are converted at once."""
     n_frames = channels.shape[0]
     out = np.broadcast_to(np.eye(3), (n_frames, skeleton.n_joints, 3, 3)).copy()
-    for j in range(skeleton.n_joints):
-        seq, cols = rotation_sequence(skeleton, j)
-        if seq:
-            out[:, j] = Rotation.from_euler(seq, channels[:, cols], degrees=True).as_matrix()
+    for seq, joints, cols in skeleton.rotation_groups:
+        out[:, joints] = euler_to_matrix(channels[:, cols], seq)
     return out
 
 
@@ -35,26 +59,28 @@ def local_translations(skeleton: Skeleton, channels: np.ndarray) -> np.ndarray:
     """Local translations ``[T, J, 3]`` (skeleton units): position channels where present, else offsets."""
     n_frames = channels.shape[0]
     out = np.broadcast_to(skeleton.offsets, (n_frames, skeleton.n_joints, 3)).copy()
-    for j in range(skeleton.n_joints):
-        for col, name in zip(skeleton.joint_channels(j), skeleton.channels[j]):
-            if name.endswith("position"):
-                out[:, j, "XYZ".index(name[0])] = channels[:, col]
+    joints, axes, cols = skeleton.position_channels
+    out[:, joints, axes] = channels[:, cols]
     return out
 
 
-def global_transforms(skeleton: Skeleton, channels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Global rotations ``[T, J, 3, 3]`` and positions ``[T, J, 3]`` (skeleton units)."""
-    rot_l = local_rotations(skeleton, channels)
+def global_transforms(
+    skeleton: Skeleton, channels: np.ndarray, rot_l: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Global rotations ``[T, J, 3, 3]`` and positions ``[T, J, 3]`` (skeleton units); ``rot_l`` may pass
+    ``local_rotations(skeleton, channels)`` when it is already known. Joints of one depth are done at once."""
+    rot_l = local_rotations(skeleton, channels) if rot_l is None else rot_l
     trans_l = local_translations(skeleton, channels)
     rot_g = np.empty_like(rot_l)
     pos_g = np.empty_like(trans_l)
-    for j, p in enumerate(skeleton.parents):
-        if p < 0:
-            rot_g[:, j] = rot_l[:, j]
-            pos_g[:, j] = trans_l[:, j]
-        else:
-            rot_g[:, j] = rot_g[:, p] @ rot_l[:, j]
-            pos_g[:, j] = pos_g[:, p] + np.einsum("tab,tb->ta", rot_g[:, p], trans_l[:, j])
+    for level, joints in enumerate(skeleton.depth_levels):
+        if level == 0:
+            rot_g[:, joints] = rot_l[:, joints]
+            pos_g[:, joints] = trans_l[:, joints]
+            continue
+        parents = np.asarray(skeleton.parents)[joints]
+        rot_g[:, joints] = rot_g[:, parents] @ rot_l[:, joints]
+        pos_g[:, joints] = pos_g[:, parents] + np.einsum("tjab,tjb->tja", rot_g[:, parents], trans_l[:, joints])
     return rot_g, pos_g
 
 

@@ -103,6 +103,39 @@ class Skeleton:
         return mask
 
     @cached_property
+    def rotation_groups(self) -> tuple[tuple[str, np.ndarray, np.ndarray], ...]:
+        """Joints grouped by rotation axis order: ``(seq, joints [G], columns [G, len(seq)])`` per order,
+        e.g. ``("ZXY", …)`` — a joint's rotation channels in file order compose as intrinsic rotations."""
+        groups: dict[str, tuple[list[int], list[list[int]]]] = {}
+        for j, names in enumerate(self.channels):
+            rot = [(int(c), n[0]) for c, n in zip(self.joint_channels(j), names) if n.endswith("rotation")]
+            if rot:
+                seq = "".join(axis for _, axis in rot)
+                joints, cols = groups.setdefault(seq, ([], []))
+                joints.append(j)
+                cols.append([c for c, _ in rot])
+        return tuple((seq, np.array(j, dtype=int), np.array(c, dtype=int)) for seq, (j, c) in groups.items())
+
+    @cached_property
+    def position_channels(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Position channels as ``(joint, axis 0-2, column)`` index arrays (translation of each joint)."""
+        found = [
+            (j, "XYZ".index(n[0]), int(c))
+            for j, names in enumerate(self.channels)
+            for c, n in zip(self.joint_channels(j), names)
+            if n.endswith("position")
+        ]
+        return tuple(np.array([f[i] for f in found], dtype=int) for i in range(3))  # type: ignore[return-value]
+
+    @cached_property
+    def depth_levels(self) -> tuple[np.ndarray, ...]:
+        """Joint indices by depth in the hierarchy (roots first); a level's parents are all in earlier ones."""
+        depth: list[int] = []
+        for p in self.parents:
+            depth.append(0 if p < 0 else depth[p] + 1)
+        return tuple(np.flatnonzero(np.array(depth) == d) for d in range(max(depth, default=-1) + 1))
+
+    @cached_property
     def scored_joints(self) -> np.ndarray:
         """Indices of joints that have at least one scored channel."""
         return np.array([j for j in range(self.n_joints) if self.scored_mask[self.joint_channels(j)].any()], dtype=int)

@@ -114,22 +114,26 @@ def imap_tasks(
     progress: bool = False,
     desc: str = "",
     unit: str = "task",
+    sizes: Sequence[int] | None = None,
 ) -> Iterator[tuple[int, Any]]:
-    """Yield ``(i, fn(items[i], *shared))`` as tasks finish (any order), with a tqdm progress bar.
+    """Yield ``(i, fn(items[i], *shared))`` as tasks finish (any order), with a tqdm progress bar that counts
+    ``sizes[i]`` per task (default 1).
 
     ``fn`` must be a module-level function (workers import it by name); ``shared`` objects are sent to each
-    worker once. An exception raised by a task is raised here.
+    worker once. An exception raised by a task is raised here. A single task with no scheduler given runs
+    in this process (starting a local cluster would only cost time).
     """
     from tqdm import tqdm
 
     parallel = parallel or Parallel()
-    bar = tqdm(total=len(items), desc=desc, unit=unit, disable=not progress)
+    sizes = [1] * len(items) if sizes is None else list(sizes)
+    bar = tqdm(total=sum(sizes), desc=desc, unit=unit, disable=not progress)
     try:
-        if parallel.in_process or not items:
+        if parallel.in_process or (len(items) <= 1 and not parallel.scheduler):
             pin_threads(parallel.threads)
             for i, item in enumerate(items):
                 yield i, fn(item, *shared)
-                bar.update()
+                bar.update(sizes[i])
             return
         from distributed import as_completed
 
@@ -142,7 +146,7 @@ def imap_tasks(
                 i = index[future.key]
                 yield i, future.result()
                 futures[i] = None  # let the worker forget the result
-                bar.update()
+                bar.update(sizes[i])
     finally:
         bar.close()
 
@@ -155,9 +159,10 @@ def map_tasks(
     progress: bool = False,
     desc: str = "",
     unit: str = "task",
+    sizes: Sequence[int] | None = None,
 ) -> list[Any]:
     """``[fn(item, *shared) for item in items]`` run as ``imap_tasks`` does, in the order of ``items``."""
     results: list[Any] = [None] * len(items)
-    for i, value in imap_tasks(fn, items, shared, parallel, progress, desc, unit):
+    for i, value in imap_tasks(fn, items, shared, parallel, progress, desc, unit, sizes):
         results[i] = value
     return results

@@ -129,3 +129,33 @@ def test_clean_refuses_skeleton_without_shipped_model(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "no shipped 'ebf' checkpoint for this skeleton, 2 joints" in err and "bandai2: 22 joints" in err
     assert not (tmp_path / "out.bvh").exists()
+
+
+def test_parallel_evaluate_scores_equal_serial(tmp_path):
+    """Clips scored on two local Dask workers give the rows of the in-process run (all but the timings)."""
+    from mocapnet.io import write_bvh
+    from mocapnet.parallel import Parallel
+
+    motion = read_bvh(SAMPLE_BVH)
+    for i in range(10):
+        write_bvh(tmp_path / f"clip_{i:02d}.bvh", motion.with_channels(motion.channels[180 * i : 180 * i + 240]))
+    methods = ["gaussian-58ms", "lerp"]
+    serial = evaluate(str(tmp_path), "noise+gaps", methods, repeats=2, progress=False)
+    spread = evaluate(str(tmp_path), "noise+gaps", methods, repeats=2, progress=False, parallel=Parallel(workers=2))
+    drop = lambda rows: [{k: v for k, v in r.items() if k != "seconds"} for r in rows]  # noqa: E731
+    assert len(serial.rows) == 10 * 2 * len(serial.methods)
+    np.testing.assert_equal(drop(spread.rows), drop(serial.rows))  # NaN (no point error) equals NaN
+
+
+def test_pose_errors_convert_once_and_match_the_separate_errors(cmu_short):
+    from mocapnet.evaluate import metrics
+
+    rng = np.random.default_rng(0)
+    sk = cmu_short.skeleton
+    noisy = cmu_short.channels + rng.normal(0, 2, cmu_short.channels.shape) * sk.scored_mask
+    rot, pos = metrics.pose_errors(cmu_short, noisy)
+    assert rot == metrics.rot_err_deg(cmu_short, noisy) and pos == metrics.pos_err_cm(cmu_short, noisy)
+    assert 0 < rot < 5 and pos > 0
+    gap = noisy.copy()
+    gap[5, np.flatnonzero(sk.scored_mask)[0]] = np.nan
+    assert all(np.isnan(metrics.pose_errors(cmu_short, gap)))

@@ -39,6 +39,7 @@ ROW_FIELDS = (
     "seconds",
 )
 GAUSSIANS = ("gaussian-58ms", "gaussian-125ms", "gaussian-tuned")
+CLIPS_PER_TASK = 8  # clips scored by one Dask task (amortises the per-task overhead)
 
 
 def has_gaps(corruption: str) -> bool:
@@ -127,6 +128,61 @@ def _motion_train_as_markers(train: Sequence[Motion]) -> list[Markers]:
     return out
 
 
+def _scored_chunks(
+    score: Callable, clips: Sequence, shared: tuple, parallel, progress: bool, corruption: str
+) -> tuple[list[dict], list[tuple[str, str]]]:
+    """Run ``score(chunk, *shared) -> (rows, skipped)`` over chunks of ``clips`` (in this process, or on Dask
+    with ``parallel``) and concatenate the results in clip order."""
+    from mocapnet.parallel import Parallel, map_tasks
+
+    parallel = parallel or Parallel(workers=0)
+    size = 1 if parallel.in_process else CLIPS_PER_TASK
+    chunks = [list(clips[i : i + size]) for i in range(0, len(clips), size)]
+    sizes = [len(c) for c in chunks]
+    results = map_tasks(score, chunks, shared, parallel, progress, f"evaluating {corruption}", "clip", sizes)
+    rows = [row for chunk_rows, _ in results for row in chunk_rows]
+    skipped = [s for _, chunk_skipped in results for s in chunk_skipped]
+    return rows, skipped
+
+
+def score_motions(
+    clips: Sequence[Motion], built: Sequence[tuple[str, Callable]], corpus: str, corruption: str, repeats: int
+) -> tuple[list[dict], list[tuple[str, str]]]:
+    """Rows of every built angle method on ``repeats`` corrupted copies of each clip (seeds from the corpus,
+    clip name, repeat and corruption), and the clips skipped with the reason."""
+    rows: list[dict] = []
+    skipped: list[tuple[str, str]] = []
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        for motion in clips:
+            sk = motion.skeleton
+            truth_rot = local_rotations(sk, motion.channels)
+            truth_pos = global_transforms(sk, motion.channels, truth_rot)[1]
+            for rep in range(repeats):
+                rng = np.random.default_rng(seed_for(corpus, motion.name, rep, corruption))
+                try:
+                    noisy_ch, mask = corrupt_motion(motion, corruption, rng)
+                except ValueError as exc:
+                    skipped.append((motion.name, str(exc)))
+                    break
+                noisy = motion.with_channels(noisy_ch)
+                for text, clean in built:
+                    start = time.perf_counter()
+                    out = clean(noisy, mask)
+                    seconds = time.perf_counter() - start
+                    rot_err, pos_err = metrics.pose_errors(motion, out, truth_rot, truth_pos)
+                    rows.append(
+                        _row(
+                            text, corruption, motion.name, rep, motion.n_frames, seconds,
+                            angle_err_deg=metrics.angle_err_deg(out, motion.channels, sk.scored_mask),
+                            gap_err_deg=metrics.gap_err_deg(out, motion.channels, mask),
+                            rot_err_deg=rot_err,
+                            pos_err_cm=pos_err,
+                        )
+                    )  # fmt: skip
+    return rows, skipped
+
+
 def evaluate_angles(
     corpus: Corpus,
     clips: Sequence[Motion],
@@ -135,10 +191,13 @@ def evaluate_angles(
     methods: Sequence[str],
     repeats: int,
     progress: bool = True,
+    parallel=None,
 ) -> tuple[list[dict], list[tuple[str, str]]]:
-    """Score angle-space methods (and point methods through IK) on ``clips``; returns rows and skipped."""
-    from tqdm import tqdm
+    """Score angle-space methods (and point methods through IK) on ``clips``; returns rows and skipped.
 
+    Methods are built (and tuned) once here; ``parallel`` (a ``mocapnet.parallel.Parallel``) scores the clips
+    on Dask workers, default in this process. Rows are in clip order either way.
+    """
     context = MethodContext(train=train, corpus=corpus.name, corruption=corruption)
     point_context: MethodContext | None = None
     built: list[tuple[str, Callable]] = []
@@ -149,39 +208,8 @@ def evaluate_angles(
         if point_context is None:
             point_context = MethodContext(_motion_train_as_markers(train), corpus.name, corruption)
         built.append((text, _points_method_as_angles(build_method(text, point_context))))
-    rows: list[dict] = []
-    skipped: list[tuple[str, str]] = []
-    for motion in tqdm(clips, desc=f"evaluating {corruption}", unit="clip", disable=not progress):
-        sk = motion.skeleton
-        truth_rot = local_rotations(sk, motion.channels)
-        truth_pos = global_transforms(sk, motion.channels)[1]
-        for rep in range(repeats):
-            rng = np.random.default_rng(seed_for(corpus.name, motion.name, rep, corruption))
-            try:
-                noisy_ch, mask = corrupt_motion(motion, corruption, rng)
-            except ValueError as exc:
-                skipped.append((motion.name, str(exc)))
-                break
-            noisy = motion.with_channels(noisy_ch)
-            for text, clean in built:
-                start = time.perf_counter()
-                out = clean(noisy, mask)
-                seconds = time.perf_counter() - start
-                rows.append(
-                    _row(
-                        text,
-                        corruption,
-                        motion.name,
-                        rep,
-                        motion.n_frames,
-                        seconds,
-                        angle_err_deg=metrics.angle_err_deg(out, motion.channels, sk.scored_mask),
-                        gap_err_deg=metrics.gap_err_deg(out, motion.channels, mask),
-                        rot_err_deg=metrics.rot_err_deg(motion, out, truth_rot),
-                        pos_err_cm=metrics.pos_err_cm(motion, out, truth_pos),
-                    )
-                )
-    return rows, skipped
+    shared = (built, corpus.name, corruption, repeats)
+    return _scored_chunks(score_motions, clips, shared, parallel, progress, corruption)
 
 
 # ---------------------------------------------------------------------------------------------- points
@@ -200,24 +228,12 @@ def load_c3d_folder(data: str | Path, progress: bool = True) -> tuple[list[Marke
     return clips, skipped
 
 
-def evaluate_points(
-    clips: Sequence[Markers], corruption: str, methods: Sequence[str], repeats: int, corpus: str, progress: bool = True
+def score_markers(
+    clips: Sequence[Markers], built: Sequence[tuple[str, Callable]], corpus: str, corruption: str, repeats: int
 ) -> tuple[list[dict], list[tuple[str, str]]]:
-    """Score point methods on marker clips under a ``segment-gap``/``marker-gap`` corruption.
-
-    Markers that are not visible throughout a clip are dropped from it first so the truth is complete.
-    """
-    from tqdm import tqdm
-
-    complete = []
-    for m in clips:
-        keep = np.flatnonzero(m.visible.all(axis=0))
-        if keep.size:
-            complete.append(m.select(keep))
-    context = MethodContext(train=complete, corpus=corpus, corruption=corruption)
-    built = [(text, build_method(text, context, space="points").clean) for text in methods]
+    """Rows of every built point method on ``repeats`` corrupted copies of each complete marker clip."""
     rows, skipped = [], []
-    for truth in tqdm(complete, desc=f"evaluating {corruption}", unit="file", disable=not progress):
+    for truth in clips:
         for rep in range(repeats):
             rng = np.random.default_rng(seed_for(corpus, truth.name, rep, corruption))
             try:
@@ -235,6 +251,31 @@ def evaluate_points(
     return rows, skipped
 
 
+def evaluate_points(
+    clips: Sequence[Markers],
+    corruption: str,
+    methods: Sequence[str],
+    repeats: int,
+    corpus: str,
+    progress: bool = True,
+    parallel=None,
+) -> tuple[list[dict], list[tuple[str, str]]]:
+    """Score point methods on marker clips under a ``segment-gap``/``marker-gap`` corruption.
+
+    Markers that are not visible throughout a clip are dropped from it first so the truth is complete.
+    ``parallel`` as in ``evaluate_angles``.
+    """
+    complete = []
+    for m in clips:
+        keep = np.flatnonzero(m.visible.all(axis=0))
+        if keep.size:
+            complete.append(m.select(keep))
+    context = MethodContext(train=complete, corpus=corpus, corruption=corruption)
+    built = [(text, build_method(text, context, space="points").clean) for text in methods]
+    shared = (built, corpus, corruption, repeats)
+    return _scored_chunks(score_markers, complete, shared, parallel, progress, corruption)
+
+
 # ---------------------------------------------------------------------------------------------- entry
 
 
@@ -248,13 +289,16 @@ def evaluate(
     progress: bool = True,
     corpus: Corpus | None = None,
     style: str | None = None,
+    parallel=None,
 ) -> Evaluation:
     """Score ``methods`` on ``data`` under ``corruption`` (see module docstring).
 
     BVH: with ``fold`` the test clips of that fold are scored and methods may learn from its training
     folds; without it every clip is scored and trainable baselines use fold 0's training folds. The
     reference baselines needed for ratios are added when missing. ``style`` keeps only the clips of that
-    style label (the unseen-style check: score a model trained with that style held out).
+    style label (the unseen-style check: score a model trained with that style held out). ``parallel`` (a
+    ``mocapnet.parallel.Parallel``) scores clips on Dask workers; the rows are the same as in this process
+    (default) but for the ``seconds`` column.
     """
     check_corruption(corruption)
     if is_c3d_data(data):
@@ -264,7 +308,7 @@ def evaluate(
         if limit:
             clips = clips[:limit]
         wanted = list(dict.fromkeys(list(methods) + list(reference_methods(corruption, "points"))))
-        rows, skipped2 = evaluate_points(clips, corruption, wanted, repeats, Path(str(data)).name, progress)
+        rows, skipped2 = evaluate_points(clips, corruption, wanted, repeats, Path(str(data)).name, progress, parallel)
         return Evaluation(str(data), corruption, "points", wanted, rows, skipped + skipped2, None, repeats)
     corpus = corpus or load_corpus(data, progress=progress, limit=limit)
     train, _, test = corpus.split(fold if fold is not None else 0)
@@ -276,5 +320,5 @@ def evaluate(
     wanted = list(dict.fromkeys(list(methods) + list(reference_methods(corruption, "angles"))))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
-        rows, skipped = evaluate_angles(corpus, clips, train, corruption, wanted, repeats, progress)
+        rows, skipped = evaluate_angles(corpus, clips, train, corruption, wanted, repeats, progress, parallel)
     return Evaluation(corpus.name, corruption, "angles", wanted, rows, corpus.skipped + skipped, fold, repeats)
