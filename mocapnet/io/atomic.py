@@ -67,6 +67,8 @@ def check_output_path(path: str | os.PathLike, inputs: Sequence[str | os.PathLik
     for src in inputs:
         if Path(src).resolve() == out.resolve():
             raise MocapFileError(f"{out}: output path is the same as the input; choose another output file")
+    if out.parent.exists() and not out.parent.is_dir():
+        raise MocapFileError(f"{out}: {out.parent} is a file, not a folder")
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
     except OSError as exc:

@@ -19,7 +19,7 @@ import os
 import re
 import tempfile
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import cached_property
 from pathlib import Path
 
@@ -40,9 +40,18 @@ READERS = ("ezc3d", "c3d")
 @dataclass(frozen=True, eq=False)
 class C3DMarkers(Markers):
     """``Markers`` read from a C3D file; ``reader`` says what read it: ``"ezc3d"``, or ``"c3d"`` (the PyPI
-    package, for the files ezc3d refuses)."""
+    package, for the files ezc3d refuses); ``point_index [M]`` is each marker's point index in the file
+    (kept by ``select``), which tells apart markers that share a label."""
 
     reader: str = ""
+    point_index: tuple[int, ...] = ()
+
+    def select(self, indices: np.ndarray | list[int]) -> C3DMarkers:
+        """The markers ``indices``, keeping each one's point index in the file."""
+        picked = super().select(indices)
+        if len(self.point_index) == self.n_markers:
+            picked = replace(picked, point_index=tuple(self.point_index[int(i)] for i in np.asarray(indices)))
+        return picked
 
 
 class TruncatedC3DWarning(UserWarning):
@@ -204,12 +213,19 @@ def read_c3d(path: str | os.PathLike, markers_only: bool = True, *, allow_trunca
             f"{path}: every marker sample is missing (NaN, exactly zero or negative residual): no usable data"
         )
     xyz = content.xyz[:, keep] * _UNIT_TO_CM[content.units]
-    return C3DMarkers(xyz, visible, [content.labels[i] for i in keep], content.rate, path.name, content.reader)
+    labels = [content.labels[i] for i in keep]
+    return C3DMarkers(xyz, visible, labels, content.rate, path.name, content.reader, tuple(int(i) for i in keep))
 
 
 def _match_columns(content: C3DContent, markers: Markers) -> np.ndarray:
-    """The file's point index of each marker, by label: the k-th marker called L is the file's k-th point
-    called L, among the physical markers first (as ``read_c3d`` picks them), else among all points."""
+    """The file's point index of each marker: ``C3DMarkers.point_index`` when it fits the file (same labels
+    there), else by label: the k-th marker called L is the file's k-th point called L, among the physical
+    markers first (as ``read_c3d`` picks them), else among all points."""
+    index = getattr(markers, "point_index", ())
+    if len(index) == markers.n_markers and all(
+        0 <= i < len(content.labels) and content.labels[i] == lab for i, lab in zip(index, markers.labels)
+    ):
+        return np.array(index, dtype=int)
     for candidates in (content.marker_indices(), np.arange(len(content.labels))):
         by_label: dict[str, list[int]] = {}
         for i in candidates:
@@ -260,7 +276,7 @@ def _write_edited(path: Path, markers: Markers, inputs: tuple, source: Path, fil
             f"{source}: cannot edit this file in place: its data block does not decode to what {content.reader} read"
         )
     values = markers.points / _UNIT_TO_CM[content.units]
-    edited = cut_to_present(layout, patch_points(layout, raw, values, filled, index))
+    edited = cut_to_present(layout, patch_points(layout, raw, values, filled, index, markers.labels))
     with atomic_output(path, (*inputs, source)) as tmp:
         tmp.write_bytes(edited)
 

@@ -14,6 +14,7 @@ DEC (little-endian integers, VAX F-floats) or MIPS (big-endian).
 from __future__ import annotations
 
 import os
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -254,7 +255,12 @@ def decode_points(layout: C3DLayout, raw: bytes) -> tuple[np.ndarray, np.ndarray
 
 
 def patch_points(
-    layout: C3DLayout, raw: bytes, values: np.ndarray, where: np.ndarray, point_index: np.ndarray
+    layout: C3DLayout,
+    raw: bytes,
+    values: np.ndarray,
+    where: np.ndarray,
+    point_index: np.ndarray,
+    labels: Sequence[str] = (),
 ) -> bytearray:
     """A copy of the file's bytes with the samples ``where`` replaced by ``values``, residual 0.
 
@@ -263,6 +269,7 @@ def patch_points(
     values : ``[T, M, 3]`` positions in the file's units (``T`` = frames present).
     where : bool ``[T, M]``, the samples to write; every other byte of the file is left as it is.
     point_index : ``[M]`` the file's point index of each column.
+    labels : ``[M]`` names of the columns, for messages.
 
     Residual word 0 marks a sample as computed, not measured (C3D convention; cameras none). Raises
     ``MocapFileError`` when an integer file cannot hold a value (beyond ±32767 × POINT:SCALE).
@@ -284,9 +291,10 @@ def patch_points(
         bad = np.flatnonzero((np.abs(counts) > 32767).any(axis=1))
         if bad.size:
             k = bad[0]
+            name = labels[cols[k]] if len(labels) > cols[k] else f"point {points[k] + 1}"
             raise MocapFileError(
-                f"{layout.path}: value {xyz[k].round(1).tolist()} at frame {frames[k] + 1}, point {points[k] + 1} "
-                f"does not fit this integer C3D file (range ±{32767 * layout.scale:.0f} in file units)"
+                f"{layout.path}: filled value {xyz[k].round(1).tolist()} of {name} at frame {frames[k] + 1} does "
+                f"not fit this integer C3D file (range ±{32767 * layout.scale:.1f} in file units)"
             )
         encoded = counts.astype(_int16(layout.processor)).view(np.uint8).reshape(-1, 4, 2)
     view[frames[:, None], 4 * points[:, None] + np.arange(4)] = encoded
