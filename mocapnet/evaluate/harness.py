@@ -152,12 +152,29 @@ def score_motions(
     clip name, repeat and corruption), and the clips skipped with the reason."""
     rows: list[dict] = []
     skipped: list[tuple[str, str]] = []
+
+    def score(motion: Motion, runs: list, truth_rot: np.ndarray, truth_pos: np.ndarray) -> None:
+        """Rows of ``runs`` (repeat, method, output, mask, seconds), their pose errors in one batch."""
+        sk = motion.skeleton
+        pose = metrics.pose_errors_many(motion, [r[2] for r in runs], truth_rot, truth_pos)
+        for (rep, text, out, mask, seconds), (rot_err, pos_err) in zip(runs, pose):
+            rows.append(
+                _row(
+                    text, corruption, motion.name, rep, motion.n_frames, seconds,
+                    angle_err_deg=metrics.angle_err_deg(out, motion.channels, sk.scored_mask),
+                    gap_err_deg=metrics.gap_err_deg(out, motion.channels, mask),
+                    rot_err_deg=rot_err,
+                    pos_err_cm=pos_err,
+                )
+            )  # fmt: skip
+        runs.clear()
+
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
         for motion in clips:
-            sk = motion.skeleton
-            truth_rot = local_rotations(sk, motion.channels)
-            truth_pos = global_transforms(sk, motion.channels, truth_rot)[1]
+            truth_rot = local_rotations(motion.skeleton, motion.channels)
+            truth_pos = global_transforms(motion.skeleton, motion.channels, truth_rot)[1]
+            runs: list = []  # outputs waiting to be scored together (at most POSE_BATCH_FRAMES frames)
             for rep in range(repeats):
                 rng = np.random.default_rng(seed_for(corpus, motion.name, rep, corruption))
                 try:
@@ -169,17 +186,10 @@ def score_motions(
                 for text, clean in built:
                     start = time.perf_counter()
                     out = clean(noisy, mask)
-                    seconds = time.perf_counter() - start
-                    rot_err, pos_err = metrics.pose_errors(motion, out, truth_rot, truth_pos)
-                    rows.append(
-                        _row(
-                            text, corruption, motion.name, rep, motion.n_frames, seconds,
-                            angle_err_deg=metrics.angle_err_deg(out, motion.channels, sk.scored_mask),
-                            gap_err_deg=metrics.gap_err_deg(out, motion.channels, mask),
-                            rot_err_deg=rot_err,
-                            pos_err_cm=pos_err,
-                        )
-                    )  # fmt: skip
+                    runs.append((rep, text, out, mask, time.perf_counter() - start))
+                    if len(runs) * motion.n_frames >= metrics.POSE_BATCH_FRAMES:
+                        score(motion, runs, truth_rot, truth_pos)
+            score(motion, runs, truth_rot, truth_pos)
     return rows, skipped
 
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 
 from mocapnet.kinematics import geodesic_deg, global_transforms, local_rotations
@@ -29,29 +31,54 @@ def gap_err_deg(cleaned: np.ndarray, truth: np.ndarray, mask: np.ndarray) -> flo
     return float(np.sqrt(np.mean(d**2))) if np.isfinite(d).all() else float("nan")
 
 
+POSE_BATCH_FRAMES = 100_000  # frames converted together by pose_errors_many (bounds its memory)
+
+
+def pose_errors_many(
+    motion: Motion,
+    outputs: Sequence[np.ndarray],
+    truth_rot: np.ndarray | None = None,
+    truth_pos: np.ndarray | None = None,
+) -> list[tuple[float, float]]:
+    """``(rot_err_deg, pos_err_cm)`` of each cleaned ``[T, C]`` in ``outputs`` against ``motion`` (see
+    ``rot_err_deg`` and ``pos_err_cm``), converting each output to rotations once for both errors and many
+    outputs in one batch (the cost of a short clip is per call, not per frame). ``truth_rot [T, J, 3, 3]``
+    and ``truth_pos [T, J, 3]`` may pass the truth's local rotations and global positions."""
+    sk = motion.skeleton
+    truth = motion.channels
+    if truth_rot is None:
+        truth_rot = local_rotations(sk, truth)
+    if truth_pos is None:
+        truth_pos = global_transforms(sk, truth, truth_rot)[1]
+    nan = float("nan")
+    result = [(nan, nan)] * len(outputs)
+    usable = [i for i, out in enumerate(outputs) if np.isfinite(out[:, sk.scored_mask]).all()]
+    joints_rot = sk.scored_joints
+    joints_pos = np.array([j for j in range(sk.n_joints) if j not in sk.context_joints], dtype=int)
+    per_batch = max(1, POSE_BATCH_FRAMES // max(1, motion.n_frames))
+    for first in range(0, len(usable), per_batch):
+        batch = usable[first : first + per_batch]
+        # Context and translation channels from the truth: the scored joints' rotations stay the output's.
+        ch = np.stack([outputs[i] for i in batch])
+        ch[:, :, ~sk.scored_mask] = truth[:, ~sk.scored_mask]
+        flat = ch.reshape(-1, sk.n_channels)
+        rot_l = local_rotations(sk, flat)
+        _, pos = global_transforms(sk, flat, rot_l)
+        shape = (len(batch), motion.n_frames)
+        rot = geodesic_deg(rot_l.reshape(shape + rot_l.shape[1:])[:, :, joints_rot], truth_rot[:, joints_rot])
+        pos = pos.reshape(shape + pos.shape[1:])[:, :, joints_pos] - truth_pos[:, joints_pos]
+        dist = np.linalg.norm(pos, axis=-1)
+        for k, i in enumerate(batch):
+            rot_err = float(rot[k].mean()) if np.isfinite(outputs[i]).all() else nan
+            result[i] = (rot_err, float(dist[k].mean() * sk.cm_per_unit))
+    return result
+
+
 def pose_errors(
     motion: Motion, cleaned: np.ndarray, truth_rot: np.ndarray | None = None, truth_pos: np.ndarray | None = None
 ) -> tuple[float, float]:
-    """``(rot_err_deg, pos_err_cm)`` of ``cleaned [T, C]`` against ``motion``, converting ``cleaned`` to
-    rotations once for both (see ``rot_err_deg`` and ``pos_err_cm``). ``truth_rot [T, J, 3, 3]`` and
-    ``truth_pos [T, J, 3]`` may pass the truth's precomputed local rotations and global positions."""
-    sk = motion.skeleton
-    if not np.isfinite(cleaned[:, sk.scored_mask]).all():
-        return float("nan"), float("nan")
-    # Context and translation channels from the truth: the scored joints' rotations stay those of `cleaned`.
-    ch = cleaned.copy()
-    ch[:, ~sk.scored_mask] = motion.channels[:, ~sk.scored_mask]
-    rot_l = local_rotations(sk, ch)
-    rot = float("nan")
-    if np.isfinite(cleaned).all():
-        truth = local_rotations(sk, motion.channels) if truth_rot is None else truth_rot
-        joints = sk.scored_joints
-        rot = float(geodesic_deg(rot_l[:, joints], truth[:, joints]).mean())
-    _, ours = global_transforms(sk, ch, rot_l)
-    truth_p = global_transforms(sk, motion.channels)[1] if truth_pos is None else truth_pos
-    joints = [j for j in range(sk.n_joints) if j not in sk.context_joints]
-    pos = float(np.linalg.norm(ours[:, joints] - truth_p[:, joints], axis=-1).mean() * sk.cm_per_unit)
-    return rot, pos
+    """``(rot_err_deg, pos_err_cm)`` of one cleaned ``[T, C]`` (``pose_errors_many`` of one output)."""
+    return pose_errors_many(motion, [cleaned], truth_rot, truth_pos)[0]
 
 
 def rot_err_deg(motion: Motion, cleaned: np.ndarray, truth_rot: np.ndarray | None = None) -> float:

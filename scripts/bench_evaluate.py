@@ -1,0 +1,124 @@
+"""Benchmark: CPU and wall time of ``mocapnet evaluate`` before and after the parallel, vectorised harness.
+
+Runs the same command line three times as child processes and takes each one's CPU time (user + system of
+the process and every worker it started, from ``getrusage(RUSAGE_CHILDREN)``):
+
+* ``before``: the harness at ``--old`` (default 58b4b19, checked out with ``git worktree`` into a temporary
+  folder and put first on ``PYTHONPATH``), in one process, as it was;
+* ``after, 1 process``: this checkout with ``--workers 0`` (the vectorised scoring alone);
+* ``after, Dask``: this checkout with its default, one worker process per core.
+
+Scores must agree to 1e-9 (every row of the CSVs). Threads: 1 per process (``mocapnet.threads``).
+
+    python scripts/bench_evaluate.py                      # 1,000 bandai2 clips, gaussian-58ms, 5 repeats
+    python scripts/bench_evaluate.py --limit 100 --repeats 1
+Writes benchmarks/results/evaluate_speed.json and .md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import os
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+SCORES = ("angle_err_deg", "gap_err_deg", "rot_err_deg", "pos_err_cm")
+
+
+def run(args: list[str], checkout: str | None, data: Path) -> tuple[float, float]:
+    """(CPU seconds of the child and its descendants, wall seconds) of ``python -m mocapnet.cli ARGS`` run in
+    ``checkout`` (first on the path, ahead of the editable install; default this one)."""
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"}
+    env.update(PYTHONPATH=checkout or str(ROOT), MOCAPNET_DATA=str(data))
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    start = time.perf_counter()
+    subprocess.run([sys.executable, "-m", "mocapnet.cli", *args], env=env, check=True, cwd=checkout or ROOT)
+    wall = time.perf_counter() - start
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime, wall
+
+
+def max_score_diff(a: Path, b: Path) -> float:
+    rows_a, rows_b = list(csv.DictReader(a.open())), list(csv.DictReader(b.open()))
+    key = ("method", "file", "repeat")
+    if [[r[k] for k in key] for r in rows_a] != [[r[k] for k in key] for r in rows_b]:
+        raise SystemExit(f"{a} and {b} hold different rows")
+    x = np.array([[float(r[k]) for k in SCORES] for r in rows_a])
+    y = np.array([[float(r[k]) for k in SCORES] for r in rows_b])
+    if not np.array_equal(np.isnan(x), np.isnan(y)):
+        raise SystemExit(f"{a} and {b}: missing scores differ")
+    return float(np.nanmax(np.abs(x - y)))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--data", default="bandai2")
+    parser.add_argument("--limit", type=int, default=1000)
+    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--method", default="gaussian-58ms")
+    parser.add_argument("--corruption", default="angular-0.5")
+    parser.add_argument("--old", default="58b4b19", help="commit of the harness before")
+    parser.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "evaluate_speed")
+    args = parser.parse_args()
+    sys.path.insert(0, str(ROOT))
+    from mocapnet.corpus import data_root, load_corpus
+    from mocapnet.evaluate.benchmark import git_commit
+    from mocapnet.parallel import local_cores
+
+    load_corpus(args.data, progress=False, limit=args.limit)  # parse cache warm for every run
+    common = ["evaluate", "--data", args.data, "--limit", str(args.limit), "--repeats", str(args.repeats)]
+    common += ["--corruption", args.corruption, "--method", args.method, "--quiet"]
+    with tempfile.TemporaryDirectory(prefix="bench_evaluate_") as tmp:
+        old = Path(tmp) / "old"
+        subprocess.run(["git", "worktree", "add", "--detach", str(old), args.old], cwd=ROOT, check=True)
+        try:
+            runs = {
+                f"before ({args.old}), 1 process": (["--csv", f"{tmp}/before.csv"], str(old)),
+                "after, 1 process (--workers 0)": (["--workers", "0", "--csv", f"{tmp}/serial.csv"], None),
+                f"after, Dask ({local_cores()} worker processes)": (["--csv", f"{tmp}/dask.csv"], None),
+            }
+            results = {}
+            for name, (extra, path) in runs.items():
+                cpu, wall = run(common + extra, path, data_root())
+                results[name] = {"cpu_s": round(cpu, 2), "wall_s": round(wall, 2)}
+                print(f"{name}: CPU {cpu:.1f} s, wall {wall:.1f} s", flush=True)
+            diffs = {
+                "serial vs before": max_score_diff(Path(f"{tmp}/before.csv"), Path(f"{tmp}/serial.csv")),
+                "dask vs before": max_score_diff(Path(f"{tmp}/before.csv"), Path(f"{tmp}/dask.csv")),
+            }
+            n_rows = sum(1 for _ in open(f"{tmp}/dask.csv")) - 1
+        finally:
+            subprocess.run(["git", "worktree", "remove", "--force", str(old)], cwd=ROOT, check=False)
+    base = next(iter(results.values()))["cpu_s"]
+    command = "python scripts/bench_evaluate.py " + " ".join(sys.argv[1:])
+    record = {"command": command, "commit": git_commit(), "mocapnet_args": common, "rows": n_rows,
+              "runs": results, "max_abs_score_diff": diffs, "cores": local_cores()}  # fmt: skip
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.with_suffix(".json").write_text(json.dumps(record, indent=1) + "\n")
+    lines = [
+        f"# `mocapnet evaluate` speed: {args.limit} {args.data} clips × {args.repeats} repeats, {args.method}",
+        "",
+        f"`{command}` at commit {git_commit(short=True)}; {local_cores()} cores (shared machine); "
+        f"{n_rows} scored rows (the method plus the reference baselines).",
+        "",
+        "| run | CPU s | ÷ before | wall s |",
+        "|---|---|---|---|",
+    ]
+    lines += [f"| {k} | {v['cpu_s']:.1f} | {v['cpu_s'] / base:.3f} | {v['wall_s']:.1f} |" for k, v in results.items()]
+    lines += ["", "Largest score difference to before (every row, angle/gap/rot/pos): "
+              + ", ".join(f"{k} {v:.2e}" for k, v in diffs.items())]  # fmt: skip
+    args.out.with_suffix(".md").write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))
+
+
+if __name__ == "__main__":
+    main()
