@@ -10,6 +10,7 @@ from __future__ import annotations
 import os
 import signal
 import tempfile
+import threading
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
@@ -37,15 +38,11 @@ def _sigterm_cleans_up() -> Iterator[None]:
     still ends (default handler) or the caller's own handler still runs. Outside the main thread, or when
     SIGTERM is ignored, nothing is installed.
     """
-    try:
-        previous = signal.getsignal(signal.SIGTERM)
-        if previous == signal.SIG_IGN or previous is None:
-            yield
-            return
-        signal.signal(signal.SIGTERM, _raise_terminated)
-    except ValueError:  # signal handlers can only be set in the main thread
-        yield
+    previous = signal.getsignal(signal.SIGTERM)
+    if previous in (signal.SIG_IGN, None) or threading.current_thread() is not threading.main_thread():
+        yield  # ignored on purpose, set outside Python, or a thread (only the main thread may set handlers)
         return
+    signal.signal(signal.SIGTERM, _raise_terminated)
     try:
         yield
     except _Terminated:

@@ -1,0 +1,65 @@
+"""`mocapnet clean` on C3D files, end to end: what the output keeps, bad output names, truncated inputs,
+files only the fallback reader reads."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from mocapnet.cli import main
+from mocapnet.io import read_c3d
+from mocapnet.io.c3d import TruncatedC3DWarning, load_c3d
+from mocapnet.io.c3d_raw import read_layout
+
+
+def test_clean_gait_to_upper_case_name_keeps_the_lab_file(shared, tmp_path, capsys):
+    import ezc3d
+
+    src = shared / "c3d/btkdata/Gait.c3d"
+    out = tmp_path / "out.C3D"
+    assert main(["clean", str(src), "-o", str(out), "--method", "lerp"]) == 0
+    assert [p.name for p in tmp_path.iterdir()] == ["out.C3D"]
+    a, b = ezc3d.c3d(str(src)), ezc3d.c3d(str(out))
+    assert b["data"]["points"].shape[1] == 33 and b["data"]["analogs"].shape[1] == 28
+    np.testing.assert_array_equal(b["data"]["analogs"], a["data"]["analogs"])
+    assert read_layout(out).first_frame == read_layout(src).first_frame and b["header"] == a["header"]
+    assert list(b["parameters"]) == list(a["parameters"])
+    before, after = load_c3d(src), load_c3d(out)
+    measured = before.visible
+    np.testing.assert_array_equal(after.xyz[measured], before.xyz[measured])
+    np.testing.assert_array_equal(after.residuals[measured], before.residuals[measured])
+    filled = after.visible & ~measured
+    assert filled.any() and (after.residuals[filled] == 0).all()
+
+
+@pytest.mark.parametrize("name", ["out", "out.bvh", "", "folder/", "folder.c3d"])
+def test_bad_output_names_exit_2_and_write_nothing(shared, tmp_path, capsys, monkeypatch, name):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "folder.c3d").mkdir()
+    src = shared / "c3d/btkdata/Gait.c3d"
+    assert main(["clean", str(src), "-o", name, "--method", "lerp"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("mocapnet: error: ") and err.count("\n") == 1
+    assert sorted(p.name for p in tmp_path.rglob("*")) == ["folder.c3d"]
+
+
+def test_truncated_input_exit_2_unless_allowed(shared, tmp_path, capsys):
+    raw = (shared / "c3d/btkdata/Eb015pi.c3d").read_bytes()
+    cut = tmp_path / "cut.c3d"
+    cut.write_bytes(raw[: len(raw) // 10])
+    out = tmp_path / "out.c3d"
+    assert main(["clean", str(cut), "-o", str(out), "--method", "lerp"]) == 2
+    assert "450 frames" in capsys.readouterr().err and not out.exists()
+    with pytest.warns(TruncatedC3DWarning, match="holds 31"):
+        assert main(["clean", str(cut), "-o", str(out), "--method", "lerp", "--allow-truncated"]) == 0
+    assert read_c3d(out).n_frames == read_layout(cut).frames_present
+
+
+def test_clean_a_file_only_the_fallback_reads(shared, tmp_path, capsys):
+    src = shared / "c3d/btkdata/sgi_int.c3d"
+    out = tmp_path / "sgi_filled.c3d"
+    assert main(["clean", str(src), "-o", str(out), "--method", "lerp"]) == 0
+    assert "read with c3d" in capsys.readouterr().out  # the message says which reader was used
+    before, after = read_c3d(src), read_c3d(out)
+    assert after.reader == "c3d" and after.visible.sum() > before.visible.sum()
+    np.testing.assert_array_equal(after.points[before.visible], before.points[before.visible])
