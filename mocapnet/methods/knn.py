@@ -45,7 +45,7 @@ Pipeline (``fill_gaps``):
    (their share of E) and optimises only the ``schedule`` fraction with the highest cost together with the
    two frames on each side (the frames coupled to them through the velocity and acceleration terms); the
    other unknowns stay fixed during that iteration. The next iteration re-ranks.
-   **Offset** (our extension, option ``offset``, off by default): the neighbours' mean trajectory of each
+   **Offset** (our extension, option ``offset``, on by default): the neighbours' mean trajectory of each
    missing point is shifted by the difference between its true and prior positions at the visible frames
    just before and after the gap, blended linearly across the gap (the velocity target gets the blend's
    slope), which removes the offset between the database's actors and the clip's.
@@ -54,6 +54,9 @@ Pipeline (``fill_gaps``):
 ``fill_gaps`` leaves samples of gaps longer than ``max_gap_s`` (per point) as NaN and lists them in its
 report. The registered ``knn`` method (``clean(noisy) -> [T, M, 3]``, the harness interface) instead fills
 those samples, and any it could not fill, by linear interpolation and warns naming file, marker and frames.
+It then blends the fill with interpolation (``blend_points``): by the distance to the nearest observed
+frame and the neighbours' spread, so interpolation is kept next to the observed frames and where the
+neighbours disagree. Without a database or training clips the take's own frames are the database.
 
 The Gløersen & Federolf PCA gap filler (no database) lives in ``mocapnet.methods.pca`` and is registered
 from here as ``pca``.
@@ -74,6 +77,7 @@ from scipy.optimize import minimize
 from scipy.spatial import cKDTree
 
 from mocapnet.corrupt import motion_markers
+from mocapnet.methods.baselines import lerp_fill, spline_fill
 from mocapnet.methods.pca import fill_remaining_linear  # importing pca also registers the "pca" method
 from mocapnet.methods.registry import MethodContext, register
 from mocapnet.motion import Markers, Motion
@@ -423,7 +427,9 @@ def _runs(flags: np.ndarray) -> list[tuple[int, int]]:
 class FillReport:
     """What ``fill_gaps`` did: gaps filled, samples left unfilled (``(label, first, last, reason)``, frames
     0-based inclusive), CPU seconds (``time.process_time``) spent building kd-trees, querying them and
-    optimising, kd-tree queries made and scheduling iterations run."""
+    optimising, kd-tree queries made and scheduling iterations run; ``spread [T, M]`` (cm): the kernel-weighted
+    RMS distance of the neighbours' positions of each missing sample to their mean at the finest resolution
+    (NaN elsewhere), how much the neighbours disagree."""
 
     gaps: int = 0
     unfilled: list[tuple[str, int, int, str]] = field(default_factory=list)
@@ -432,6 +438,7 @@ class FillReport:
     solve_s: float = 0.0
     queries: int = 0
     iterations: int = 0
+    spread: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
 
 
 class _Energy:
@@ -542,14 +549,14 @@ class _Settings:
 def fill_gaps(
     markers: Markers,
     database: MotionDatabase,
-    k: int = 8,
+    k: int = 32,
     reliable: str | Sequence[str] | None = None,
     levels: int | None = None,
     max_gap_s: float | None = None,
     schedule: float = 0.25,
     threshold: float = 0.01,
     inner: int = 30,
-    offset: bool = False,
+    offset: bool = True,
     exclude: str | None = None,
 ) -> tuple[np.ndarray, FillReport]:
     """Fill the missing samples of ``markers`` from similar poses of ``database`` (see module docstring).
@@ -565,11 +572,12 @@ def fill_gaps(
     schedule : fraction of a gap's frames (highest cost first) optimised per iteration.
     threshold : relative energy gain below which a resolution is left for the next finer one.
     inner : L-BFGS iterations per scheduling iteration.
-    offset : our extension, off by default (not in the paper): shift the neighbours' mean trajectory of
+    offset : our extension, on by default (not in the paper): shift the neighbours' mean trajectory of
         each missing point by the difference between the point's true and prior positions at the visible
         frames just before and after the gap, blended linearly across it (one side only: constant). It
         removes the offset between the database's actors and the clip's and makes the fill continuous.
-    exclude : clip name left out of the database (the clip being cleaned), default ``markers.name``.
+    exclude : clip name left out of the database (the clip being cleaned), default ``markers.name``; ``""``
+        leaves nothing out (the take is its own database).
 
     Returns
     -------
@@ -580,7 +588,7 @@ def fill_gaps(
     ------
     ValueError naming the file and the database when the database lacks a point that has missing samples.
     """
-    report = FillReport()
+    report = FillReport(spread=np.full(markers.visible.shape, np.nan))
     name = markers.name or "markers"
     cols = database.columns(markers)
     todo = ~markers.visible & (cols >= 0)[None]
@@ -605,7 +613,7 @@ def fill_gaps(
         k, min(levels or auto_levels(markers.fps), len(database.levels)), schedule, threshold, inner, offset
     )
     excluded = markers.name if exclude is None else exclude
-    keep_clip = np.array([c != excluded for c in database.clip_names])
+    keep_clip = np.array([not excluded or c != excluded for c in database.clip_names])
     for a, b in _runs(todo.any(axis=1)):
         unknown = np.flatnonzero(todo[a:b].any(axis=0))
         features = np.flatnonzero(usable & markers.visible[a:b].all(axis=0))
@@ -703,6 +711,11 @@ class _Gap:
             np.einsum("qk,qkpc->qpc", weights, data[hits[..., None], u_cols]) * scale
             for data, scale in ((level.positions, 1.0), (level.velocities, dt), (level.accelerations, dt**2))
         ]
+        if lev == 0:
+            spread = np.einsum(
+                "qk,qkp->qp", weights, ((level.positions[hits[..., None], u_cols] - means[0][:, None]) ** 2).sum(-1)
+            )
+            report.spread[np.ix_(frames[query], self.unknown)] = np.sqrt(spread[: len(query)])
         out = []
         for mean in means:
             full = np.zeros((len(frames), len(self.unknown), 3))
@@ -738,37 +751,82 @@ def _resample(frames_c: np.ndarray, values: np.ndarray, frames: np.ndarray) -> n
     return out
 
 
+def edge_seconds(missing: np.ndarray, fps: float) -> np.ndarray:
+    """Seconds from every sample of ``missing [T, K]`` (True = missing) to the nearest observed sample of its
+    column: 0 where observed, inf in a column with no observed sample."""
+    n = len(missing)
+    t = np.broadcast_to(np.arange(n)[:, None], missing.shape)
+    last = np.maximum.accumulate(np.where(missing, -1, t), axis=0)
+    after = np.minimum.accumulate(np.where(missing, n, t)[::-1], axis=0)[::-1]
+    gap = np.minimum(np.where(last >= 0, t - last, np.inf), np.where(after < n, after - t, np.inf))
+    return gap / fps
+
+
+def blend_weight(spread: np.ndarray, seconds: np.ndarray, speed: float) -> np.ndarray:
+    """Weight of the kNN estimate against interpolation, ``1 / (1 + (spread / (speed · seconds))²)``: 0 at an
+    observed sample, towards 1 far from it where the neighbours agree (small ``spread``). ``speed`` (units
+    of ``spread`` per second) is how fast interpolation's error is taken to grow with the distance
+    ``seconds`` to the nearest observed sample. A NaN spread (no neighbours asked) counts as agreement."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = np.nan_to_num(spread, nan=0.0) / (speed * seconds)
+    return 1.0 / (1.0 + np.nan_to_num(ratio, nan=0.0, posinf=np.inf) ** 2)
+
+
+def blend_points(
+    noisy: Markers, filled: np.ndarray, spread: np.ndarray, speed: float | None, base: str = "lerp"
+) -> np.ndarray:
+    """``base + β (filled - base)`` on the missing samples of ``noisy`` (``filled [T, M, 3]`` cm, finite),
+    β = ``blend_weight(spread [T, M] cm, edge_seconds, speed cm/s)``; ``base`` is ``lerp`` or ``spline``
+    interpolation of each coordinate. ``speed`` None returns ``filled``. Observed samples are unchanged."""
+    if speed is None:
+        return filled
+    if base not in ("lerp", "spline"):
+        raise ValueError(f"knn: base must be lerp or spline, got {base!r}")
+    t, m = noisy.visible.shape
+    fill = lerp_fill if base == "lerp" else spline_fill
+    interp = fill(noisy.points.reshape(t, m * 3), np.repeat(~noisy.visible, 3, axis=1)).reshape(t, m, 3)
+    beta = blend_weight(spread, edge_seconds(~noisy.visible, noisy.fps), speed)
+    out = interp + beta[..., None] * (filled - interp)
+    out[noisy.visible] = noisy.points[noisy.visible]
+    return out
+
+
 @register(
     "knn",
     "points",
-    help="kNN poses from a clean database + energy minimisation (long/segment gaps); "
-    "options k, levels, reliable (all|paper|A+B), database=<folder>, max_gap_s, schedule, offset, up",
+    help="kNN poses from a clean database + energy minimisation, offset-corrected, blended with interpolation; "
+    "options k, levels, reliable (all|paper|A+B), database=<folder>, max_gap_s, schedule, offset, speed, base, up",
 )
 def _knn(
     context: MethodContext,
-    k: int = 8,
+    k: int = 32,
     levels: int | None = None,
     reliable: str | None = None,
     database: str | None = None,
     max_gap_s: float | None = None,
     schedule: float = 0.25,
     threshold: float = 0.01,
-    offset: bool = False,
+    offset: bool = True,
+    speed: float | None = 20.0,
+    base: str = "lerp",
     up: str = "auto",
 ) -> Callable[[Markers], np.ndarray]:
-    """``knn`` for the harness. The database is ``database`` (folder(s) of C3D files, joined with
-    ``os.pathsep``) when given, else ``context.train``; the clip being cleaned (same ``name``) is left out.
+    """``knn`` for point data. The database is ``database`` (folder(s) of C3D files, joined with
+    ``os.pathsep``) when given, else ``context.train`` (the clip being cleaned, same ``name``, is left out),
+    else the take's own frames (rows where the markers to fill are visible). ``clean.database`` says which.
+    The fill is blended with ``base`` interpolation by ``blend_points`` (``speed`` cm/s; None: no blend).
     Samples ``fill_gaps`` leaves NaN (gaps over ``max_gap_s``, gaps without a visible reliable point) are
     filled by linear interpolation with a warning."""
+    fixed: MotionDatabase | None = None
     if database is not None:
-        db = MotionDatabase.from_folders(database, levels, up=up)
+        fixed = MotionDatabase.from_folders(database, levels, up=up)
     elif context.train:
-        db = MotionDatabase.from_markers(context.train, levels, up=up, source=context.corpus)
-    else:
-        raise ValueError("knn needs a database: give database=<folder of C3D files> or training clips")
+        fixed = MotionDatabase.from_markers(context.train, levels, up=up, source=context.corpus or "training clips")
 
     def clean(noisy: Markers) -> np.ndarray:
-        filled, _ = fill_gaps(
+        db = fixed or MotionDatabase.from_markers([noisy], levels, up=up, source=f"{noisy.name or 'the take'} itself")
+        clean.database = db.describe() + ("" if fixed else " (its own complete frames)")  # type: ignore[attr-defined]
+        filled, report = fill_gaps(
             noisy,
             db,
             k=k,
@@ -778,9 +836,14 @@ def _knn(
             schedule=schedule,
             threshold=threshold,
             offset=offset,
+            exclude=None if fixed else "",
         )
-        return fill_remaining_linear(noisy, filled, "knn left a gap unfilled (too long or no visible reliable marker)")
+        filled = fill_remaining_linear(
+            noisy, filled, "knn left a gap unfilled (too long or no visible reliable marker)"
+        )
+        return blend_points(noisy, filled, report.spread, speed, base)
 
+    clean.database = fixed.describe() if fixed else "the take's own complete frames"  # type: ignore[attr-defined]
     return clean
 
 

@@ -13,8 +13,9 @@ For every *gap* (maximal run of frames in which some scored channel is missing):
 2. **Search.** Exact k nearest neighbours by blocked brute force (``|q|² − 2 q·x + |x|²`` as float32
    matrix products over the whole database; a frame's stacked distance is the sum of its three shifted
    per-frame distances, never across clip boundaries). The query frames are every ``stride``-th frame of
-   the gap (``query_hz``) plus the observed frames just before and after it; estimates in between are
-   interpolated. Clips named like the input (and those in ``exclude``) are left out.
+   the gap (``query_hz``) plus the observed frames just before and after it; in between, each query frame's
+   neighbours are followed forward (or back) in their own clips and the two estimates mixed linearly. Clips
+   named like the input (and those in ``exclude``) are left out.
 3. **Estimate.** Kernel-weighted mean (``1 / (d² + ε²)``) of the neighbours' channels, as wrapped
    differences from the interpolated value (so Euler wrap-around cannot split a mean); the neighbours'
    weighted spread (RMS, degrees) is kept per channel.
@@ -39,6 +40,7 @@ import numpy as np
 
 from mocapnet.methods import knn_database  # a module import: knn_database and knn import each other
 from mocapnet.methods.baselines import lerp_fill
+from mocapnet.methods.knn import blend_weight, edge_seconds
 from mocapnet.methods.registry import MethodContext, register
 from mocapnet.motion import Motion, Skeleton
 
@@ -118,6 +120,10 @@ class Searcher:
         # [N, 3P + P]: coordinates and squared norms per point, so one product gives -2 q·x + |x|².
         self.table = np.ascontiguousarray(np.concatenate([pts.reshape(len(pts), -1), (pts**2).sum(-1)], axis=1).T)
         self._same_clip: dict[int, np.ndarray] = {}
+        starts = np.flatnonzero(np.diff(db.clip, prepend=-1) != 0)
+        ends = np.append(starts[1:], len(db.clip)) - 1
+        sizes = np.diff(np.append(starts, len(db.clip)))
+        self.first, self.last = np.repeat(starts, sizes), np.repeat(ends, sizes)  # [N]: each frame's clip bounds
 
     def same_clip(self, shift: int) -> np.ndarray:
         """``[N]`` bool: frames i with i − shift and i + shift in the same clip as i."""
@@ -166,12 +172,51 @@ class Searcher:
             np.add(prof[inverse[:, 0], : n - 2 * shift], prof[inverse[:, 1], shift : n - shift], out=body)
             body += prof[inverse[:, 2], 2 * shift :]
             total[:, ~valid] = np.inf
-            idx = np.argpartition(total, k - 1, axis=1)[:, :k]
-            d = np.take_along_axis(total, idx, axis=1)
-            order = np.argsort(d, axis=1)
-            dists.append(np.maximum(np.take_along_axis(d, order, axis=1), 0.0))
+            wide = min(2 * k, int(valid.sum()))  # float32 shortlist, re-ranked in float64 below
+            idx = np.argpartition(total, wide - 1, axis=1)[:, :wide]
+            d = self._exact(feats, weights, frames, idx, shift)
+            order = np.argsort(d, axis=1)[:, :k]
+            dists.append(np.take_along_axis(d, order, axis=1))
             idxs.append(np.take_along_axis(idx, order, axis=1))
         return np.concatenate(dists), np.concatenate(idxs)
+
+    def continued(
+        self,
+        idx: np.ndarray,
+        kernel: np.ndarray,
+        grid: np.ndarray,
+        span: np.ndarray,
+        unknown: np.ndarray,
+        ref: np.ndarray,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Estimate ``[S, U]`` (degrees) and spread ``[S, U]`` of the channels ``unknown`` (indices into the
+        scored channels) at frames ``span [S]`` from the neighbours ``idx [R, k]`` (weights ``kernel``) of the
+        query frames ``grid [R]``: between two query frames, each one's neighbours are followed forward or
+        back in their own clip by the same number of frames, and the two estimates are mixed linearly. Means
+        are wrapped differences from ``ref [S, U]`` (degrees)."""
+        j = np.clip(np.searchsorted(grid, span, side="right") - 1, 0, max(len(grid) - 2, 0))
+        nxt = np.minimum(j + 1, len(grid) - 1)
+        gap = np.maximum(grid[nxt] - grid[j], 1)
+        lam = np.clip((span - grid[j]) / gap, 0.0, 1.0)[:, None]
+        sides = []
+        for rows in (j, nxt):
+            nb = np.clip(idx[rows] + (span - grid[rows])[:, None], self.first[idx[rows]], self.last[idx[rows]])
+            diff = wrap(self.db.channels[nb][:, :, unknown] - ref[:, None])  # [S, k, U]
+            w = kernel[rows][..., None]
+            mean = (w * diff).sum(axis=1)
+            sides.append((mean, np.sqrt((w * (diff - mean[:, None]) ** 2).sum(axis=1))))
+        (m0, s0), (m1, s1) = sides
+        return ref + (1 - lam) * m0 + lam * m1, (1 - lam) * s0 + lam * s1
+
+    def _exact(self, feats: np.ndarray, weights: np.ndarray, frames: np.ndarray, idx: np.ndarray, shift: int):
+        """Stacked squared distances ``[R, K]`` (cm², float64) of query frames ``frames [R, 3]`` to database
+        frames ``idx [R, K]`` (the float32 products lose about 0.01 cm² to rounding; an exact match must
+        get distance 0)."""
+        out = np.zeros(idx.shape)
+        for s, off in enumerate((-shift, 0, shift)):
+            diff = self.db.points[idx + off].astype(np.float64) - feats[frames[:, s]][:, None]
+            out += ((diff**2).sum(-1) * weights[frames[:, s]][:, None]).sum(-1)
+        return out
 
 
 @dataclass(frozen=True)
@@ -219,6 +264,7 @@ def fill_angles(
     stride = max(1, int(round(motion.fps / settings.query_hz)))
     shift = stride * max(1, int(round(settings.shift_s * motion.fps / stride)))  # shared profiles (see query)
     weights = visible.astype(np.float32)
+    seconds = edge_seconds(mask, motion.fps)
     n_t = motion.n_frames
     for a, b in _runs(smask.any(axis=1)):
         stats.gaps += 1
@@ -234,17 +280,12 @@ def fill_angles(
         kernel = 1.0 / (d2 + _KERNEL_EPS2)
         kernel /= kernel.sum(axis=1, keepdims=True)
         cols = scored_cols[unknown]
-        ref = base[grid][:, cols]  # [R, U]
-        diff = wrap(db.channels[idx][:, :, unknown] - ref[:, None])  # [R, k, U]
-        mean = (kernel[..., None] * diff).sum(axis=1)
-        spread = np.sqrt((kernel[..., None] * (diff - mean[:, None]) ** 2).sum(axis=1))
-        stats.spread.append(float(spread.mean()))
         span = np.arange(lo, hi + 1)
-        est = np.stack([np.interp(span, grid, ref[:, u] + mean[:, u]) for u in range(len(cols))], axis=1)
-        sprd = np.stack([np.interp(span, grid, spread[:, u]) for u in range(len(cols))], axis=1)
+        est, sprd = searcher.continued(idx, kernel, grid, span, unknown, base[span][:, cols])
+        stats.spread.append(float(sprd.mean()))
         for u, c in enumerate(cols):
             for c0, c1 in _runs(mask[lo : hi + 1, c]):
-                _fill_run(out[:, c], base[:, c], est[:, u], sprd[:, u], lo, c0 + lo, c1 + lo, motion, settings)
+                _fill_run(out[:, c], base[:, c], est[:, u], sprd[:, u], seconds[:, c], lo, (c0 + lo, c1 + lo), settings)
     out[~mask] = motion.channels[~mask]
     stats.total_s = time.process_time() - t_start
     return out, stats
@@ -255,34 +296,24 @@ def _fill_run(
     base: np.ndarray,
     est: np.ndarray,
     spread: np.ndarray,
+    seconds: np.ndarray,
     lo: int,
-    c0: int,
-    c1: int,
-    motion: Motion,
+    run: tuple[int, int],
     settings: AngleSettings,
 ) -> None:
-    """Offset-correct and blend one channel's missing run ``[c0, c1)`` into ``out [T]`` (in place);
-    ``est``/``spread`` cover frames ``lo, lo + 1, …``."""
-    n_t = len(out)
+    """Offset-correct and blend one channel's missing run ``[c0, c1)`` into ``out [T]`` (degrees, in place);
+    ``est``/``spread`` cover frames ``lo, lo + 1, …``; ``seconds [T]`` to the nearest observed frame."""
+    c0, c1 = run
     t = np.arange(c0, c1)
     e = est[t - lo]
     if settings.offset:
-        sides = [(c0 - 1, wrap(base[c0 - 1] - est[c0 - 1 - lo])) if c0 > 0 else None]
-        sides.append((c1, wrap(base[c1] - est[c1 - lo])) if c1 < n_t else None)
-        known = [s for s in sides if s is not None]
+        known = [(f, wrap(base[f] - est[f - lo])) for f in (c0 - 1, c1) if 0 <= f < len(out)]
         if len(known) == 2:
             (f0, o0), (f1, o1) = known
             e = e + o0 + (o1 - o0) * (t - f0) / (f1 - f0)
         elif known:
             e = e + known[0][1]
-    if settings.speed is None:
-        out[t] = base[t] + wrap(e - base[t])
-        return
-    before = t - (c0 - 1) if c0 > 0 else np.full(len(t), np.inf)
-    after = c1 - t if c1 < n_t else np.full(len(t), np.inf)
-    d = np.minimum(before, after) / motion.fps
-    ratio = spread[t - lo] / (settings.speed * d)
-    beta = 1.0 / (1.0 + ratio**2)
+    beta = 1.0 if settings.speed is None else blend_weight(spread[t - lo], seconds[t], settings.speed)
     out[t] = base[t] + beta * wrap(e - base[t])
 
 

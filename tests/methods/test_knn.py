@@ -9,25 +9,30 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mocapnet.corpus import PACKAGE_DATA
-from mocapnet.corrupt import corrupt_markers, motion_markers
-from mocapnet.io.bvh import read_bvh
+from mocapnet.corpus import PACKAGE_DATA, list_bvh
+from mocapnet.corrupt import corrupt_markers, corrupt_motion, motion_markers
+from mocapnet.io.bvh import read_bvh, write_bvh
 from mocapnet.io.c3d import read_c3d
 from mocapnet.methods import MethodContext, build_method
+from mocapnet.methods.baselines import lerp_fill
 from mocapnet.methods.knn import (
     Anchors,
     MotionDatabase,
+    blend_weight,
     body_frames,
     denormalise,
     derivatives,
     detect_anchors,
     downsample,
+    edge_seconds,
     fill_gaps,
     normalise,
     upsample,
 )
+from mocapnet.methods.knn_angles import fill_angles, wrap
+from mocapnet.methods.knn_database import SkeletonDatabase, cached_database, default_corpus
 from mocapnet.methods.pca import pca_fill
-from mocapnet.motion import Markers
+from mocapnet.motion import Markers, Motion
 
 SHARED = Path(os.environ.get("MOCAPNET_DATA", Path(__file__).parents[2].parent / "shared" / "data"))
 FPS = 60.0
@@ -199,7 +204,7 @@ def test_gaps_over_max_length_left_nan_or_interpolated_with_warning(walk, databa
     assert np.isnan(out[~noisy.visible]).all()
     assert {u[0] for u in report.unfilled} == {"LUPA", "LELB", "LFRM", "LWRA", "LWRB", "LFIN"}
     other = synthetic_walk(phase=1.0, swing=0.3, name="other")
-    method = build_method("knn:max_gap_s=0.5", MethodContext(train=[other]))
+    method = build_method("knn:max_gap_s=0.5", MethodContext(train=[other]), space="points")
     with pytest.warns(UserWarning) as caught:
         filled = method.clean(noisy)
     messages = [str(w.message) for w in caught]
@@ -212,9 +217,10 @@ def test_registered_methods_build_and_run(walk) -> None:
     noisy = corrupt_markers(walk, "segment-gap:right-arm:1", np.random.default_rng(2))
     same_name = Markers(walk.points, walk.visible, walk.labels, FPS, "walk")
     train = [same_name, synthetic_walk(phase=2.0, swing=0.7, name="x")]
-    knn = build_method("knn:k=4", MethodContext(train=train))
+    knn = build_method("knn:k=4", MethodContext(train=train), space="points")
     pca = build_method("pca")
     assert knn.space == pca.space == "points" and knn.options == {"k": 4}
+    assert build_method("knn").space == "angles"  # BVH data: the joint-space kNN (knn_angles)
     for method in (knn, pca):
         out = method.clean(noisy)
         assert out.shape == walk.points.shape and np.isfinite(out).all()
@@ -234,7 +240,7 @@ def test_knn_on_joint_positions_of_a_motion() -> None:
     visible = truth.visible.copy()
     visible[200:320, arm] = False
     noisy = Markers(truth.points, visible, truth.labels, truth.fps, "second half")
-    out = build_method("knn", MethodContext(train=[train])).clean(noisy)
+    out = build_method("knn", MethodContext(train=[train]), space="points").clean(noisy)
     err = np.linalg.norm(out - truth.points, axis=-1)[~visible].mean()
     assert np.isfinite(out).all() and err < 15.0
 
@@ -257,7 +263,113 @@ def test_database_folder_option_leaves_the_file_out() -> None:
         pytest.skip(f"shared data not found at {SHARED}")
     clip = read_c3d(folder / "85_02.c3d")
     noisy = corrupt_markers(clip, "segment-gap:left-arm:1", np.random.default_rng(0))
-    out = build_method(f"knn:database={folder},k=4").clean(noisy)
+    out = build_method(f"knn:database={folder},k=4", space="points").clean(noisy)
     err = np.linalg.norm(out - clip.points, axis=-1)[~noisy.visible].mean()
     assert np.array_equal(out[noisy.visible], clip.points[noisy.visible])
     assert 0.1 < err < 100.0  # the file itself (in the folder) was not used
+
+
+# ------------------------------------------------------------------------------------------ joint space
+
+
+def _cmu_parts() -> tuple[Motion, Motion, Motion]:
+    """Three 400-frame pieces of the shipped CMU clip (120 fps)."""
+    motion = read_bvh(PACKAGE_DATA / "bvh" / "01_01.bvh.gz")
+    return tuple(Motion(motion.skeleton, motion.channels[a : a + 400], motion.fps, f"part{a}") for a in (0, 900, 1800))  # type: ignore[return-value]
+
+
+@pytest.fixture(scope="module")
+def parts() -> tuple[Motion, Motion, Motion]:
+    return _cmu_parts()
+
+
+def _segment_gap(motion: Motion, corruption: str, seed: int = 0) -> tuple[Motion, np.ndarray]:
+    noisy, mask = corrupt_motion(motion, corruption, np.random.default_rng(seed))
+    return motion.with_channels(noisy), mask
+
+
+def _gap_rms(out: np.ndarray, truth: np.ndarray, mask: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(wrap(out[mask] - truth[mask]) ** 2)))
+
+
+@pytest.mark.parametrize("corruption", ["segment-gap:left-arm:1", "segment-gap:legs:1"])
+def test_angles_exact_when_the_database_holds_the_truth(parts, corruption: str) -> None:
+    """The kNN must copy the truth from the database (lerp, or anything that ignores it, cannot)."""
+    truth = parts[1]
+    db = SkeletonDatabase.from_motions([parts[0], truth.with_channels(truth.channels), parts[2]])
+    db.names = ("part0", "copy of the truth", "part1800")  # the copy is not left out as "the same clip"
+    noisy, mask = _segment_gap(truth, corruption)
+    out, stats = fill_angles(noisy, mask, db)
+    assert stats.gaps == 1
+    assert _gap_rms(out, truth.channels, mask) < 1e-3
+    assert _gap_rms(lerp_fill(noisy.channels, mask), truth.channels, mask) > 1.0
+
+
+def test_angles_blend_never_moves_observed_samples_and_uses_the_database(parts) -> None:
+    truth = parts[1]
+    db = SkeletonDatabase.from_motions([parts[0], parts[2]])
+    noisy, mask = _segment_gap(truth, "segment-gap:right-arm:1", seed=4)
+    out, _ = fill_angles(noisy, mask, db)
+    assert np.array_equal(out[~mask], truth.channels[~mask]) and np.isfinite(out).all()
+    lerp = lerp_fill(noisy.channels, mask)
+    assert np.abs(out[mask] - lerp[mask]).max() > 1.0  # not interpolation in disguise
+    # The clip itself is never its own neighbour: a database of the clip alone has nothing to offer.
+    alone = SkeletonDatabase.from_motions([truth])
+    with pytest.raises(ValueError, match="no usable frame"):
+        fill_angles(noisy, mask, alone)
+
+
+def test_blend_weight_and_edge_seconds() -> None:
+    missing = np.array([0, 1, 1, 1, 1, 0], dtype=bool)[:, None]
+    assert np.array_equal(edge_seconds(missing, 2.0).ravel(), [0, 0.5, 1.0, 1.0, 0.5, 0])
+    beta = blend_weight(np.array([0.0, 1.0, 1.0, 5.0]), np.array([0.1, 0.1, 1.0, 1.0]), 10.0)
+    assert beta[0] == 1.0 and beta[1] == 0.5 and beta[2] > beta[3] > beta[1]  # agree: 1; spread or edge: less
+
+
+def test_points_blend_keeps_observed_samples_and_the_take_is_its_own_database() -> None:
+    tennis = read_c3d(PACKAGE_DATA / "c3d" / "kinematics_tennis_serve.c3d")
+    noisy = corrupt_markers(tennis, "marker-gap:0.5", np.random.default_rng(1))
+    knn = build_method("knn", MethodContext(), space="points")
+    out = knn.clean(noisy)
+    assert "its own complete frames" in knn.clean.database
+    assert np.array_equal(out[noisy.visible], tennis.points[noisy.visible]) and np.isfinite(out).all()
+    lerp = build_method("lerp", space="points").clean(noisy)
+    assert np.abs(out - lerp)[~noisy.visible].max() > 0.01
+
+
+def test_database_cache_is_npz_and_a_tampered_entry_is_rebuilt(parts, tmp_path, monkeypatch) -> None:
+    folder = tmp_path / "corpus"
+    for m in parts:
+        write_bvh(folder / f"{m.name}.bvh", m)
+    monkeypatch.setenv("MOCAPNET_CACHE", str(tmp_path / "cache"))
+    db = cached_database(str(folder))
+    (entry,) = (tmp_path / "cache").glob("knn-*.npz")
+    assert entry.read_bytes()[:2] == b"PK"  # a zip of .npy arrays, not a pickle
+    with np.load(entry, allow_pickle=False) as npz:  # every array loads without pickle
+        arrays = {k: npz[k] for k in npz.files}
+    assert len(db.names) == 3 and db.points.shape == (1200, len(db.labels), 3)
+    again = cached_database(str(folder))
+    assert np.array_equal(again.channels, db.channels) and again.names == db.names
+    arrays["channels"] = arrays["channels"] + 1.0  # tampered: the stored checksum no longer matches
+    np.savez(entry, **arrays)
+    with pytest.warns(UserWarning, match="checksum mismatch"):
+        rebuilt = cached_database(str(folder))
+    assert np.array_equal(rebuilt.channels, db.channels)
+    SkeletonDatabase.load(entry)  # rewritten with a valid checksum
+
+
+def test_registered_knn_fills_bvh_in_joint_space(parts, tmp_path) -> None:
+    folder = tmp_path / "db"
+    for m in (parts[0], parts[2]):
+        write_bvh(folder / f"{m.name}.bvh", m)
+    method = build_method(f"knn:database={folder}", MethodContext())
+    truth = parts[1]
+    noisy, mask = _segment_gap(truth, "segment-gap:left-leg:1", seed=2)
+    out = method.clean(noisy, mask)
+    assert method.space == "angles" and str(folder.name) in method.clean.database
+    assert np.array_equal(out[~mask], truth.channels[~mask]) and np.isfinite(out).all()
+
+
+def test_default_database_is_the_largest_corpus_of_the_skeleton(shared) -> None:
+    bandai = read_bvh(list_bvh(shared / "bvh" / "bandai_namco_1")[0])
+    assert default_corpus(bandai.skeleton) == "bandai2"
