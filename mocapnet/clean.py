@@ -24,6 +24,7 @@ class CleanOptions:
     mask: str | None = None
     database: str | None = None
     plot: str | None = None  # C3D: PNG of the filled markers' trajectories
+    allow_truncated: bool = False  # C3D: read the frames present in a truncated file (warning) instead of failing
 
 
 @dataclass(frozen=True)
@@ -133,7 +134,7 @@ def clean_c3d_file(src: Path, out: Path, options: CleanOptions) -> CleanResult:
     from mocapnet.methods.registry import MethodContext, build_method, parse_method
     from mocapnet.motion import Markers
 
-    markers = read_c3d(src)
+    markers = read_c3d(src, allow_truncated=options.allow_truncated)
     method = options.method or "auto"
     name, method_options = parse_method(method)
     usable = np.flatnonzero(markers.visible.any(axis=0))
@@ -155,16 +156,17 @@ def clean_c3d_file(src: Path, out: Path, options: CleanOptions) -> CleanResult:
         gaps = describe_fill(markers, points, name)
     filled = np.isfinite(points).all(axis=2) & ~markers.visible
     result = Markers(points, markers.visible | filled, markers.labels, markers.fps, markers.name)
-    write_c3d(out, result, inputs=(src,))
+    write_c3d(out, result, inputs=(src,), source=src, filled=filled)
     if options.plot:
         plot_fills(options.plot, markers, points, gaps)
     empty = markers.n_markers - usable.size
     n_filled = int(filled.sum())
-    left = sum(g["status"] == "unfilled" for g in gaps)
+    left = sum(bool(g["unfilled_spans"]) for g in gaps)
     return CleanResult(
         src, out, method, markers.n_frames, n_filled,
         f"{src} -> {out}: {method} filled {n_filled} of {n_missing} missing samples in {usable.size} markers"
-        + (f"; {left} gaps left missing (no plausible fill)" if left and name == "auto" else "")
+        + (f" (read with {reader})" if (reader := getattr(markers, "reader", "ezc3d")) != "ezc3d" else "")
+        + (f"; {left} gaps wholly or partly left missing (no plausible fill)" if left else "")
         + (f"; {empty} markers with no data at all left empty" if empty else ""),
         {"gaps": gaps},
     )  # fmt: skip

@@ -37,7 +37,7 @@ import numpy as np
 from mocapnet.methods.baselines import lerp_fill, spline_fill
 from mocapnet.methods.pca import fill_remaining_linear, pca_fill
 from mocapnet.methods.registry import MethodContext, build_method, register
-from mocapnet.methods.rigid import distance_spread, gap_runs, rigid_fill_gap
+from mocapnet.methods.rigid import distance_spread, gap_runs, rigid_fill_gap, rigid_reach
 from mocapnet.motion import Markers
 
 CANDIDATES = ("rigid", "pca", "knn", "spline", "lerp")
@@ -66,6 +66,32 @@ def step_ratio(track: np.ndarray, start: int, stop: int, reference_cm: float) ->
     if steps.size == 0 or not reference_cm > 0:
         return float("nan")
     return float(steps.max() / reference_cm)
+
+
+def fill_plausibility(markers: Markers, result: np.ndarray) -> tuple[float, dict | None, int, int]:
+    """The plausibility of a whole fill, as ``shared/tools/c3d-fillcheck.py`` measures it: over every marker,
+    the worst step touching a sample that was missing in ``markers`` and is finite in ``result [T, M, 3]``
+    (cm), ÷ that marker's largest measured step. Returns ``(worst ratio, where, samples filled, samples
+    missing)``; ``where`` names the marker, the frame the step ends at and both steps in cm (None when
+    nothing was filled; the ratio is then 0)."""
+    reference = largest_measured_steps(markers.points, markers.visible)
+    have = np.isfinite(result).all(axis=2)
+    filled = ~markers.visible & have
+    steps = np.linalg.norm(np.diff(np.where(have[..., None], result, 0.0), axis=0), axis=-1)
+    touch = (filled[1:] | filled[:-1]) & have[1:] & have[:-1]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratios = np.where(touch, steps / reference, 0.0)
+    worst, where = 0.0, None
+    if touch.any():
+        k, m = np.unravel_index(int(np.nanargmax(np.where(touch, ratios, -1.0))), ratios.shape)
+        worst = float(ratios[k, m])
+        where = {
+            "marker": markers.labels[m],
+            "frame": int(k + 1),
+            "step_cm": round(float(steps[k, m]), 3),
+            "largest_measured_cm": round(float(reference[m]), 3),
+        }
+    return worst, where, int(filled.sum()), int((~markers.visible).sum())
 
 
 def match_edges(fill: np.ndarray, track: np.ndarray, start: int, stop: int) -> np.ndarray:
@@ -113,6 +139,12 @@ class _Candidates:
         self._whole: dict[str, np.ndarray] = {}
         self._spread: np.ndarray | None = None
 
+    def spread(self) -> np.ndarray:
+        """Distance spread ``[M, M]`` (cm) of every marker pair, computed once."""
+        if self._spread is None:
+            self._spread = distance_spread(self.points, self.visible)
+        return self._spread
+
     def whole(self, name: str) -> np.ndarray:
         if name not in self._whole:
             pts, vis = self.points, self.visible
@@ -136,9 +168,7 @@ class _Candidates:
         """The candidate ``name``'s fill ``[stop - start, 3]`` of one gap and facts about it, or None and
         ``{"reason": ...}``."""
         if name == "rigid":
-            if self._spread is None:
-                self._spread = distance_spread(self.points, self.visible)
-            got = rigid_fill_gap(self.points, self.visible, self._spread, marker, start, stop, **self.rigid_options)
+            got = rigid_fill_gap(self.points, self.visible, self.spread(), marker, start, stop, **self.rigid_options)
             if got is None:
                 return None, {"reason": "fewer than 3 rigid partners visible through the gap"}
             labels = [self.markers.labels[p] for p in got.partners]
@@ -202,102 +232,135 @@ def auto_fill(
     out = points.copy()
     filled = np.zeros(visible.shape, dtype=bool)
     gaps: list[dict] = []
+
+    def accept(m: int, start: int, stop: int, name: str, report: dict) -> bool:
+        fill, info = candidates.fill(name, m, start, stop)
+        if fill is None:
+            report["tried"].append(f"{name}: {info['reason']}")
+            return False
+        trial = out[:, m].copy()
+        trial[start:stop] = fill
+        ratio = step_ratio(trial, start, stop, reference[m])
+        if not ratio <= limit:
+            report["tried"].append(f"{name}: step ratio {ratio:.2f} > {limit:g}")
+            return False
+        out[start:stop, m] = fill
+        filled[start:stop, m] = True
+        worst = max(ratio, report["ratio"] or 0.0)
+        report.update(method=name, ratio=round(worst, 3), **info)
+        return True
+
     for m in np.flatnonzero(~visible.all(axis=0)):
-        runs = gap_runs(~visible[:, m])
-        for start, stop in runs:
-            seconds = (stop - start) / markers.fps
-            report = {
-                "marker": markers.labels[m],
-                "marker_index": int(m),
-                "first_frame": start,
-                "last_frame": stop - 1,
-                "frames": stop - start,
-                "seconds": round(seconds, 4),
-                "status": "unfilled",
-                "method": None,
-                "ratio": None,
-                "tried": [],
-            }
+        m = int(m)
+        for start, stop in gap_runs(~visible[:, m]):
+            report = gap_report(markers, m, start, stop)
             gaps.append(report)
             if not visible[:, m].any():
                 report["tried"].append("never measured in this take")
                 continue
+            seconds = report["seconds"]
             two_sided = start > 0 and stop < n_frames
             for name in _order(seconds, order, spline_first_s):
                 if name == "knn" and candidates.database is None:
                     continue
                 if name in INTERPOLATORS and not two_sided:
                     report["tried"].append(f"{name}: gap reaches the end of the take")
-                    continue
-                if name in INTERPOLATORS and seconds > max_interp_s:
+                elif name in INTERPOLATORS and seconds > max_interp_s:
                     report["tried"].append(f"{name}: gap longer than {max_interp_s:g} s")
-                    continue
-                fill, info = candidates.fill(name, int(m), start, stop)
-                if fill is None:
-                    report["tried"].append(f"{name}: {info['reason']}")
-                    continue
-                trial = points[:, m].copy()
-                trial[start:stop] = fill
-                ratio = step_ratio(trial, start, stop, reference[m])
-                if not ratio <= limit:
-                    report["tried"].append(f"{name}: step ratio {ratio:.2f} > {limit:g}")
-                    continue
-                out[start:stop, m] = fill
-                filled[start:stop, m] = True
-                report.update(status="filled", method=name, ratio=round(ratio, 3), **info)
-                break
+                elif accept(m, start, stop, name, report):
+                    break
+            else:
+                if "rigid" in order:
+                    for piece in _rigid_pieces(candidates, m, start, stop, max_std_cm):
+                        accept(m, *piece, "rigid", report)
+            _finish(report, filled[start:stop, m], start)
     return AutoFill(out, filled, gaps)
+
+
+def _rigid_pieces(candidates: _Candidates, marker: int, start: int, stop: int, max_std_cm: float) -> list[tuple]:
+    """Parts of the gap ``[start, stop)`` next to a measured edge through which three rigid partners stay
+    visible (``[start, stop)`` pairs; the later piece is dropped where the two would overlap)."""
+    spread = candidates.spread()
+    visible = candidates.visible
+    pieces = []
+    if start > 0:
+        n = min(rigid_reach(visible, spread, marker, start - 1, 1, max_std_cm), stop - start)
+        if n:
+            pieces.append((start, start + n))
+    if stop < len(visible):
+        n = min(rigid_reach(visible, spread, marker, stop, -1, max_std_cm), stop - start)
+        if n and (not pieces or pieces[0][1] <= stop - n):
+            pieces.append((stop - n, stop))
+    return pieces
+
+
+def gap_report(markers: Markers, marker: int, start: int, stop: int) -> dict:
+    """A fresh report of the gap ``[start, stop)`` of ``marker``: nothing filled yet."""
+    return {
+        "marker": markers.labels[marker],
+        "marker_index": marker,
+        "first_frame": start,
+        "last_frame": stop - 1,
+        "frames": stop - start,
+        "seconds": round((stop - start) / markers.fps, 4),
+        "status": "unfilled",
+        "method": None,
+        "ratio": None,
+        "filled_frames": 0,
+        "unfilled_spans": [[start, stop - 1]],
+        "tried": [],
+    }
+
+
+def _finish(report: dict, filled: np.ndarray, start: int) -> None:
+    """Set a report's status, filled frame count and unfilled spans (first, last; inclusive) from ``filled``
+    (the gap's frames, True where filled)."""
+    report["filled_frames"] = int(filled.sum())
+    report["unfilled_spans"] = [[start + a, start + b - 1] for a, b in gap_runs(~filled)]
+    report["status"] = "filled" if filled.all() else "partly filled" if filled.any() else "unfilled"
 
 
 def describe_fill(markers: Markers, result: np.ndarray, method: str) -> list[dict]:
     """Per-gap reports (as :func:`auto_fill` writes them) for a fill ``result [T, M, 3]`` made by one
-    ``method``: each gap is ``filled`` where every sample got a finite value, with its step ratio."""
+    ``method``, with the step ratio of the samples it filled."""
     reference = largest_measured_steps(markers.points, markers.visible)
+    have = np.isfinite(result).all(axis=2)
     gaps = []
     for m in np.flatnonzero(~markers.visible.all(axis=0)):
         for start, stop in gap_runs(~markers.visible[:, m]):
-            ok = bool(np.isfinite(result[start:stop, m]).all())
-            ratio = step_ratio(result[:, m], start, stop, reference[m]) if ok else float("nan")
-            gaps.append(
-                {
-                    "marker": markers.labels[m],
-                    "marker_index": int(m),
-                    "first_frame": start,
-                    "last_frame": stop - 1,
-                    "frames": stop - start,
-                    "seconds": round((stop - start) / markers.fps, 4),
-                    "status": "filled" if ok else "unfilled",
-                    "method": method if ok else None,
-                    "ratio": round(ratio, 3) if np.isfinite(ratio) else None,
-                    "tried": [],
-                }
-            )
+            report = gap_report(markers, int(m), start, stop)
+            _finish(report, have[start:stop, m], start)
+            if report["filled_frames"]:
+                ratio = step_ratio(np.where(have[:, m, None], result[:, m], np.nan), start, stop, reference[m])
+                report.update(method=method, ratio=round(ratio, 3) if np.isfinite(ratio) else None)
+            gaps.append(report)
     return gaps
 
 
-def summary_table(gaps: Sequence[dict], limit: float = 2.0) -> str:
-    """A short text table of per-gap reports: gaps, samples and worst step ratio per method, then the
-    unfilled gaps (the ten longest) with the last reason each candidate gave."""
-    by: dict[str, list[dict]] = {}
-    for g in gaps:
-        by.setdefault(g["method"] or "unfilled", []).append(g)
-    lines = [f"{'method':10s} {'gaps':>6s} {'samples':>8s} {'worst step ratio':>17s}"]
-    for name in [*CANDIDATES, *sorted(set(by) - set(CANDIDATES) - {"unfilled"}), "unfilled"]:
-        rows = by.get(name)
+def summary_table(gaps: Sequence[dict], limit: float = 2.0, shown: int = 8) -> str:
+    """A short text table of per-gap reports: per method the gaps it filled (wholly or in part), samples and
+    worst step ratio; the gaps with samples left missing; then the ``shown`` longest missing spans with the
+    reasons the first candidates gave."""
+    lines = [f"{'method':14s} {'gaps':>6s} {'samples':>8s} {'worst step ratio':>17s}"]
+    methods = [*CANDIDATES, *sorted({g["method"] for g in gaps if g["method"]} - set(CANDIDATES))]
+    for name in methods:
+        rows = [g for g in gaps if g["method"] == name]
         if not rows:
             continue
         ratios = [g["ratio"] for g in rows if g["ratio"] is not None]
         worst = f"{max(ratios):.2f}" if ratios else "-"
         flag = " (over the limit)" if ratios and max(ratios) > limit else ""
-        lines.append(f"{name:10s} {len(rows):6d} {sum(g['frames'] for g in rows):8d} {worst:>17s}{flag}")
-    unfilled = sorted(by.get("unfilled", []), key=lambda g: -g["frames"])
-    for g in unfilled[:10]:
-        why = g["tried"][-1] if g["tried"] else "no candidate"
-        lines.append(
-            f"  unfilled {g['marker']} frames {g['first_frame']}-{g['last_frame']} ({g['seconds']:g} s): {why}"
-        )
-    if len(unfilled) > 10:
-        lines.append(f"  … and {len(unfilled) - 10} shorter unfilled gaps")
+        lines.append(f"{name:14s} {len(rows):6d} {sum(g['filled_frames'] for g in rows):8d} {worst:>17s}{flag}")
+    left = [g for g in gaps if g["unfilled_spans"]]
+    if left:
+        n_left = sum(b - a + 1 for g in left for a, b in g["unfilled_spans"])
+        lines.append(f"{'left missing':14s} {len(left):6d} {n_left:8d} {'-':>17s}")
+    spans = sorted(((b - a + 1, a, b, g) for g in left for a, b in g["unfilled_spans"]), key=lambda x: -x[0])
+    for n, a, b, g in spans[:shown]:
+        why = "; ".join(g["tried"][:2]) or "no candidate"
+        lines.append(f"  missing {g['marker']} frames {a}-{b} ({n} frames): {why}")
+    if len(spans) > shown:
+        lines.append(f"  … and {len(spans) - shown} shorter spans left missing")
     return "\n".join(lines)
 
 
@@ -318,7 +381,7 @@ def plot_fills(
 
     touched: dict[int, int] = {}
     for g in gaps:
-        touched[g["marker_index"]] = touched.get(g["marker_index"], 0) + g["frames"] * (g["status"] == "filled")
+        touched[g["marker_index"]] = touched.get(g["marker_index"], 0) + g["filled_frames"]
     chosen = sorted(touched, key=lambda m: -touched[m])[:max_markers]
     chosen = sorted(chosen) or [0]
     t = np.arange(markers.n_frames) / markers.fps
@@ -331,9 +394,12 @@ def plot_fills(
         for g in gaps:
             if g["marker_index"] != m:
                 continue
-            span = (g["first_frame"] / markers.fps, (g["last_frame"] + 1) / markers.fps)
-            ok = g["status"] == "filled"
-            ax.axvspan(*span, color="tab:green" if ok else "tab:red", alpha=0.18 if ok else 0.12, lw=0)
+            if g["filled_frames"]:
+                ax.axvspan(g["first_frame"] / markers.fps, (g["last_frame"] + 1) / markers.fps, color="tab:green",
+                           alpha=0.18, lw=0)  # fmt: skip
+            for a, b in g["unfilled_spans"]:
+                ax.axvspan(a / markers.fps, (b + 1) / markers.fps, color="white", lw=0)
+                ax.axvspan(a / markers.fps, (b + 1) / markers.fps, color="tab:red", alpha=0.12, lw=0)
         ax.set_ylabel(markers.labels[m], rotation=0, ha="right", fontsize=8)
         ax.tick_params(labelsize=7)
     axes[0, 0].legend(loc="upper right", fontsize=7, ncol=3)

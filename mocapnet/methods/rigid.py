@@ -87,6 +87,11 @@ class RigidFill:
     residual_cm: float
 
 
+def _measured_edges(visible: np.ndarray, marker: int, start: int, stop: int) -> list[int]:
+    """The frames ``start - 1`` and ``stop`` that exist and where ``marker`` is measured."""
+    return [r for r in (start - 1, stop) if 0 <= r < len(visible) and visible[r, marker]]
+
+
 def rigid_partners(
     visible: np.ndarray,
     spread: np.ndarray,
@@ -97,14 +102,32 @@ def rigid_partners(
     max_partners: int = 6,
 ) -> np.ndarray:
     """Indices of the markers that stay rigid with ``marker`` (distance spread ≤ ``max_std_cm``) and are
-    visible in every frame from ``start - 1`` to ``stop`` (clipped to the take), most rigid first."""
-    lo, hi = max(start - 1, 0), min(stop + 1, len(visible))
+    visible in every frame from ``start`` to ``stop - 1`` and at the edges where ``marker`` is measured,
+    most rigid first."""
+    edges = _measured_edges(visible, marker, start, stop)
+    lo, hi = min([start, *edges]), max([stop - 1, *edges]) + 1
     through = visible[lo:hi].all(axis=0)
     through[marker] = False
     row = spread[marker]
     ok = through & np.isfinite(row) & (row <= max_std_cm)
     idx = np.flatnonzero(ok)
     return idx[np.argsort(row[idx], kind="stable")][:max_partners]
+
+
+def rigid_reach(
+    visible: np.ndarray, spread: np.ndarray, marker: int, edge: int, direction: int, max_std_cm: float = 2.0
+) -> int:
+    """How many frames past the measured frame ``edge`` (``direction`` +1: later, -1: earlier) at least three
+    rigid partners of ``marker`` (spread ≤ ``max_std_cm``) stay visible together with ``edge`` (0 if none)."""
+    row = spread[marker]
+    ok = np.isfinite(row) & (row <= max_std_cm) & visible[edge]
+    ok[marker] = False
+    if ok.sum() < 3:
+        return 0
+    ahead = visible[edge + direction :: direction] if direction > 0 else visible[edge - 1 :: -1]
+    lost = ~ahead[:, ok]  # [frames past the edge, partners]
+    first_lost = np.where(lost.any(axis=0), lost.argmax(axis=0), len(ahead))
+    return int(np.sort(first_lost)[-3])
 
 
 def rigid_fill_gap(
@@ -119,11 +142,12 @@ def rigid_fill_gap(
     min_partners: int = 3,
     min_spread_cm: float = 1.0,
 ) -> RigidFill | None:
-    """Rigid-body fill of ``points[start:stop, marker]`` (module docstring); ``points [T, M, 3]`` cm,
-    ``visible [T, M]``, ``spread [M, M]`` from :func:`distance_spread`. None when the gap has no measured
-    edge or fewer than ``min_partners`` non-collinear rigid partners."""
-    t_len = len(points)
-    edges = [r for r in (start - 1, stop) if 0 <= r < t_len]
+    """Rigid-body fill of ``points[start:stop, marker]`` (module docstring) from the edges ``start - 1`` and
+    ``stop`` where the marker is measured (one edge: carried from it alone; a part of a longer gap may be
+    filled this way); ``points [T, M, 3]`` cm, ``visible [T, M]``, ``spread [M, M]`` from
+    :func:`distance_spread`. None when no edge is measured or fewer than ``min_partners`` non-collinear rigid
+    partners are visible throughout."""
+    edges = _measured_edges(visible, marker, start, stop)
     if not edges:
         return None
     partners = rigid_partners(visible, spread, marker, start, stop, max_std_cm, max_partners)
