@@ -28,7 +28,8 @@ that of the best Gaussian baseline (noise), lerp+gaussian-58ms (noise+gaps) or l
 
 CLEAN_EXAMPLE = """\
 examples:
-  mocapnet clean take.c3d -o take_filled.c3d                      # fill the file's own gaps (PCA, no database)
+  mocapnet clean take.c3d -o take_filled.c3d --plot fills.png     # fill the file's own gaps (auto), draw them
+  mocapnet clean take.c3d -o take_filled.c3d --method pca          # one filler for every gap, unchecked
   mocapnet clean take.c3d -o take_filled.c3d --method knn --database clean_takes/
   mocapnet clean take.c3d -o take_live.c3d --method extrapolate+cm
   mocapnet clean walk.bvh -o walk_clean.bvh                       # denoise with the shipped EBF for this skeleton
@@ -99,7 +100,14 @@ def _clean(args: argparse.Namespace) -> int:
     from mocapnet.clean import CleanOptions, clean_file
     from mocapnet.threads import pin_threads
 
-    options = CleanOptions(method=args.method, model=args.model, mask=args.mask, database=args.database)
+    options = CleanOptions(
+        method=args.method,
+        model=args.model,
+        mask=args.mask,
+        database=args.database,
+        plot=args.plot,
+        allow_truncated=args.allow_truncated,
+    )
     parallel = _parallel(args)
     if args.report:
         report_format(args.report)
@@ -108,9 +116,17 @@ def _clean(args: argparse.Namespace) -> int:
         start = time.perf_counter()
         result = clean_file(args.input, args.output, options)
         print(result.message)
+        if result.details.get("gaps"):
+            from mocapnet.methods.autofill import summary_table
+
+            print(summary_table(result.details["gaps"]))
+        if args.plot:
+            print(f"wrote {args.plot}")
         if args.report:
             write_report(args.report, [FileReport.from_result(result, time.perf_counter() - start)])
         return 0
+    if args.plot:
+        raise ValueError("--plot draws one C3D file's fills; give a file, not a folder")
     print(f"cleaning {args.input} -> {args.output} on {parallel.describe()}", file=sys.stderr)
     reports = clean_folder(args.input, args.output, options, parallel, args.force, progress=not args.quiet)
     print(summary(reports))
@@ -192,11 +208,19 @@ def build_parser() -> argparse.ArgumentParser:
     cl.add_argument("input", help="input .bvh, .bvh.gz or .c3d, or a folder of them")
     cl.add_argument("-o", "--output", required=True, help="output file (same format as the input) or folder")
     cl.add_argument(
-        "--method", help="method (default: ebf for BVH, ebd+ebf with --mask; pca for C3D, knn with --database)"
+        "--method",
+        help="method (default: ebf for BVH, ebd+ebf with --mask; auto for C3D: per gap rigid-body, pca, knn with "
+        "--database, spline or lerp, each fill checked, implausible gaps left missing)",
     )
     cl.add_argument("--model", help="checkpoint(s) for a neural method, comma-separated for ebd+ebf")
     cl.add_argument("--mask", help="BVH: .npy bool mask of missing samples, [T, C] or [T, J]")
     cl.add_argument("--database", help="C3D: folder of clean C3D takes of the same marker set (knn)")
+    cl.add_argument("--plot", help="C3D: write a PNG of the filled markers' trajectories, filled spans highlighted")
+    cl.add_argument(
+        "--allow-truncated",
+        action="store_true",
+        help="C3D: a file whose data block is shorter than its header says: warn and clean the frames present",
+    )
     cl.add_argument("--report", help="write one row per file: .csv, or .json with each file's details")
     cl.add_argument("--force", action="store_true", help="folder: clean again files whose output is up to date")
     _add_parallel_args(ev)
