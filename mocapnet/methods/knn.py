@@ -69,7 +69,7 @@ import re
 import time
 import warnings
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -374,24 +374,9 @@ class MotionDatabase:
     def from_folders(
         cls, folders: str | os.PathLike | Sequence[str | os.PathLike], levels: int | None = None, up: str = "auto"
     ) -> MotionDatabase:
-        """Build from every ``.c3d`` file in one folder or several (a sequence, or one string joined with
-        ``os.pathsep``). Files ezc3d cannot read are skipped with a warning."""
-        from mocapnet.io import MocapFileError, read_c3d
-
-        if isinstance(folders, (str, os.PathLike)):
-            folders = [f for f in str(folders).split(os.pathsep) if f]
-        clips = []
-        for folder in map(Path, folders):
-            if not folder.is_dir():
-                raise ValueError(f"knn: database folder {folder} does not exist")
-            for path in sorted(p for p in folder.iterdir() if p.suffix.lower() == ".c3d"):
-                try:
-                    clips.append(read_c3d(path))
-                except MocapFileError as exc:
-                    warnings.warn(f"knn: database file skipped: {exc}", stacklevel=2)
-        if not clips:
-            raise ValueError(f"knn: no readable .c3d file in database folder(s) {[str(f) for f in folders]}")
-        return cls.from_markers(clips, levels, up=up, source=", ".join(map(str, folders)))
+        """Build from every ``.c3d`` file in one folder or several (``read_folders``)."""
+        clips, source = read_folders(folders)
+        return cls.from_markers(clips, levels, up=up, source=source)
 
     @property
     def nbytes(self) -> int:
@@ -407,6 +392,27 @@ class MotionDatabase:
         """Database column of each of ``markers``' points (``[M]`` int, -1 where the database lacks it)."""
         column = {lab: i for i, lab in enumerate(self.labels)}
         return np.array([column.get(bare_label(lab), -1) for lab in markers.labels], dtype=int)
+
+
+def read_folders(folders: str | os.PathLike | Sequence[str | os.PathLike]) -> tuple[list[Markers], str]:
+    """Every ``.c3d`` file in one folder or several (a sequence, or one string joined with ``os.pathsep``),
+    and the folders as one string. Files ezc3d cannot read are skipped with a warning."""
+    from mocapnet.io import MocapFileError, read_c3d
+
+    if isinstance(folders, (str, os.PathLike)):
+        folders = [f for f in str(folders).split(os.pathsep) if f]
+    clips = []
+    for folder in map(Path, folders):
+        if not folder.is_dir():
+            raise ValueError(f"knn: database folder {folder} does not exist")
+        for path in sorted(p for p in folder.iterdir() if p.suffix.lower() == ".c3d"):
+            try:
+                clips.append(read_c3d(path))
+            except MocapFileError as exc:
+                warnings.warn(f"knn: database file skipped: {exc}", stacklevel=2)
+    if not clips:
+        raise ValueError(f"knn: no readable .c3d file in database folder(s) {[str(f) for f in folders]}")
+    return clips, ", ".join(map(str, folders))
 
 
 def _up_index(up: str, points: np.ndarray) -> int:
@@ -809,22 +815,32 @@ def _knn(
     offset: bool = True,
     speed: float | None = 20.0,
     base: str = "lerp",
+    own: bool = False,
     up: str = "auto",
 ) -> Callable[[Markers], np.ndarray]:
     """``knn`` for point data. The database is ``database`` (folder(s) of C3D files, joined with
     ``os.pathsep``) when given, else ``context.train`` (the clip being cleaned, same ``name``, is left out),
     else the take's own frames (rows where the markers to fill are visible). ``clean.database`` says which.
-    The fill is blended with ``base`` interpolation by ``blend_points`` (``speed`` cm/s; None: no blend).
+    ``own``: the take's own frames join a given database too. The fill is blended with ``base``
+    interpolation by ``blend_points`` (``speed`` cm/s; None: no blend).
     Samples ``fill_gaps`` leaves NaN (gaps over ``max_gap_s``, gaps without a visible reliable point) are
     filled by linear interpolation with a warning."""
     fixed: MotionDatabase | None = None
+    clips: list[Markers] = []
     if database is not None:
-        fixed = MotionDatabase.from_folders(database, levels, up=up)
+        clips, source = read_folders(database)
+        fixed = MotionDatabase.from_markers(clips, levels, up=up, source=source)
     elif context.train:
-        fixed = MotionDatabase.from_markers(context.train, levels, up=up, source=context.corpus or "training clips")
+        clips = [c if isinstance(c, Markers) else motion_markers(c) for c in context.train]
+        fixed = MotionDatabase.from_markers(clips, levels, up=up, source=context.corpus or "training clips")
 
     def clean(noisy: Markers) -> np.ndarray:
-        db = fixed or MotionDatabase.from_markers([noisy], levels, up=up, source=f"{noisy.name or 'the take'} itself")
+        if fixed is None or own:
+            take = replace(noisy, name=f"{noisy.name}, own frames")  # not left out as the clip being cleaned
+            source = f"{fixed.source} + the take's own frames" if fixed else f"{noisy.name or 'the take'} itself"
+            db = MotionDatabase.from_markers(clips + [take], levels, up=up, source=source)
+        else:
+            db = fixed
         clean.database = db.describe() + ("" if fixed else " (its own complete frames)")  # type: ignore[attr-defined]
         filled, report = fill_gaps(
             noisy,
@@ -836,7 +852,6 @@ def _knn(
             schedule=schedule,
             threshold=threshold,
             offset=offset,
-            exclude=None if fixed else "",
         )
         filled = fill_remaining_linear(
             noisy, filled, "knn left a gap unfilled (too long or no visible reliable marker)"
