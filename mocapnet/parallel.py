@@ -94,7 +94,7 @@ def dask_client(parallel: Parallel) -> Iterator[Any]:
             n_workers=parallel.workers or local_cores(),
             threads_per_worker=1,
             processes=True,
-            dashboard_address=None,
+            dashboard_address=":0",  # the scheduler serves HTTP anyway: on a free port
             silence_logs=logging.ERROR,
         )
         client = Client(cluster)

@@ -46,15 +46,36 @@ def has_gaps(corruption: str) -> bool:
     return "gap" in corruption
 
 
-def reference_methods(corruption: str, space: str) -> tuple[str, ...]:
-    """Baselines every table carries so that ratios can be formed (PROTOCOL.md 'Ratio')."""
+@dataclass(frozen=True)
+class Reference:
+    """The one rule for ratios (PROTOCOL.md 'Ratio'): ``metric`` of a method ÷ the best (lowest) ``metric``
+    among ``methods``; ``also`` are baselines every table carries beside them (e.g. the noisy input)."""
+
+    metric: str
+    methods: tuple[str, ...]
+    also: tuple[str, ...] = ()
+
+    @property
+    def carried(self) -> tuple[str, ...]:
+        """Every baseline a table of this corruption holds, in table order."""
+        return self.also + self.methods
+
+
+def reference(corruption: str, space: str) -> Reference:
+    """The reference of a corruption: the best of the three Gaussians (58 ms, 125 ms, tuned) for noise,
+    lerp + Gaussian 58 ms for ``noise+gaps``, lerp for gaps and for point data."""
     if space == "points":
-        return ("lerp",)
+        return Reference("point_err_cm", ("lerp",))
     if corruption == "noise+gaps":
-        return ("lerp", "lerp+gaussian-58ms")
+        return Reference("gap_err_deg", ("lerp+gaussian-58ms",), also=("lerp",))
     if has_gaps(corruption):
-        return ("lerp",)
-    return ("noisy", "gaussian-58ms", "gaussian-125ms")
+        return Reference("gap_err_deg", ("lerp",))
+    return Reference("angle_err_deg", GAUSSIANS, also=("noisy",))
+
+
+def reference_methods(corruption: str, space: str) -> tuple[str, ...]:
+    """Baselines every table carries so that ratios can be formed (``reference(...).carried``)."""
+    return reference(corruption, space).carried
 
 
 @dataclass
@@ -328,7 +349,14 @@ def evaluate(
         if not clips:
             raise ValueError(f"{corpus.name}: no clip of style {style!r} among the clips to score")
     wanted = list(dict.fromkeys(list(methods) + list(reference_methods(corruption, "angles"))))
+    if not train and "gaussian-tuned" in wanted and "gaussian-tuned" not in methods:
+        wanted.remove("gaussian-tuned")  # a reference that needs training clips, and there are none
+        skipped = [("gaussian-tuned", "gaussian-tuned: left out of the reference, no training clips")]
+    else:
+        skipped = []
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
-        rows, skipped = evaluate_angles(corpus, clips, train, corruption, wanted, repeats, progress, parallel)
-    return Evaluation(corpus.name, corruption, "angles", wanted, rows, corpus.skipped + skipped, fold, repeats)
+        rows, skipped2 = evaluate_angles(corpus, clips, train, corruption, wanted, repeats, progress, parallel)
+    return Evaluation(
+        corpus.name, corruption, "angles", wanted, rows, corpus.skipped + skipped + skipped2, fold, repeats
+    )

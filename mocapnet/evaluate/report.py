@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mocapnet.evaluate.harness import GAUSSIANS, ROW_FIELDS, Evaluation, has_gaps
+from mocapnet.evaluate.harness import ROW_FIELDS, Evaluation, reference
 from mocapnet.io.atomic import atomic_output
 
 
@@ -47,14 +47,9 @@ def summarize(ev: Evaluation) -> list[dict]:
 
 
 def headline(ev: Evaluation) -> tuple[str, tuple[str, ...]]:
-    """(metric, reference methods) for the ratio column."""
-    if ev.space == "points":
-        return "point_err_cm", ("lerp",)
-    if ev.corruption == "noise+gaps":
-        return "gap_err_deg", ("lerp+gaussian-58ms",)
-    if has_gaps(ev.corruption):
-        return "gap_err_deg", ("lerp",)
-    return "angle_err_deg", GAUSSIANS
+    """(metric, reference methods) for the ratio column: ``harness.reference``, the one rule."""
+    ref = reference(ev.corruption, ev.space)
+    return ref.metric, ref.methods
 
 
 def _fmt(x: float, digits: int = 3) -> str:
