@@ -18,7 +18,6 @@ Writes benchmarks/results/evaluate_speed.json and .md.
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import os
 import resource
@@ -32,23 +31,29 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 SCORES = ("angle_err_deg", "gap_err_deg", "rot_err_deg", "pos_err_cm")
+# `mocapnet evaluate ARGS`, its --csv rows dumped at full precision (JSON) instead of the CSV's 6 digits.
+CHILD = """import json, sys
+from mocapnet.evaluate import report
+report.write_csv = lambda path, rows: open(path, "w").write(json.dumps(rows))
+from mocapnet.cli import main
+sys.exit(main(sys.argv[1:]))"""
 
 
 def run(args: list[str], checkout: str | None, data: Path) -> tuple[float, float]:
-    """(CPU seconds of the child and its descendants, wall seconds) of ``python -m mocapnet.cli ARGS`` run in
+    """(CPU seconds of the child and its descendants, wall seconds) of ``mocapnet ARGS`` (``CHILD``) run in
     ``checkout`` (first on the path, ahead of the editable install; default this one)."""
     env = {**os.environ, "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"}
     env.update(PYTHONPATH=checkout or str(ROOT), MOCAPNET_DATA=str(data))
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     start = time.perf_counter()
-    subprocess.run([sys.executable, "-m", "mocapnet.cli", *args], env=env, check=True, cwd=checkout or ROOT)
+    subprocess.run([sys.executable, "-c", CHILD, *args], env=env, check=True, cwd=checkout or ROOT)
     wall = time.perf_counter() - start
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     return after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime, wall
 
 
 def max_score_diff(a: Path, b: Path) -> float:
-    rows_a, rows_b = list(csv.DictReader(a.open())), list(csv.DictReader(b.open()))
+    rows_a, rows_b = json.loads(a.read_text()), json.loads(b.read_text())
     key = ("method", "file", "repeat")
     if [[r[k] for k in key] for r in rows_a] != [[r[k] for k in key] for r in rows_b]:
         raise SystemExit(f"{a} and {b} hold different rows")
@@ -95,7 +100,7 @@ def main() -> None:
                 "serial vs before": max_score_diff(Path(f"{tmp}/before.csv"), Path(f"{tmp}/serial.csv")),
                 "dask vs before": max_score_diff(Path(f"{tmp}/before.csv"), Path(f"{tmp}/dask.csv")),
             }
-            n_rows = sum(1 for _ in open(f"{tmp}/dask.csv")) - 1
+            n_rows = len(json.loads(Path(f"{tmp}/dask.csv").read_text()))
         finally:
             subprocess.run(["git", "worktree", "remove", "--force", str(old)], cwd=ROOT, check=False)
     base = next(iter(results.values()))["cpu_s"]
