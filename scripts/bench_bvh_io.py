@@ -1,8 +1,15 @@
-"""Benchmark: BVH loading time of mocapnet's reader vs the PyPI ``bvh`` package (the reference).
+"""Benchmark: BVH loading CPU time of mocapnet's reader vs the PyPI ``bvh`` package (the reference).
 
-Both readers start from the same decompressed text already in memory (gzip excluded) and must deliver a
-float array ``[T, C]`` of the frames plus the joint names; mocapnet also builds the skeleton, checks every
-value and unwraps the Euler channels. Values are compared file by file (before unwrapping).
+Per file, the two readers run back to back in alternating order (interleaved), each timed with
+``time.process_time`` (CPU time of this process, so other jobs on a shared machine count less), over several
+rounds. Two measurements:
+
+* text: both parse the same decompressed text already in memory into a float array ``[T, C]`` plus the
+  joint names; mocapnet runs with ``read_bvh``'s defaults (every check, unit guess, unwrapping);
+* file: ``read_bvh(path)`` vs ``gzip`` + the ``bvh`` package on the same ``.bvh.gz`` file.
+
+Values are compared file by file (mocapnet without unwrapping vs the package). It also times the parse of a
+synthetic 10,000-joint hierarchy and the write + read of a 1,000-level chain.
 
     python scripts/bench_bvh_io.py                      # first 830 files of bandai2 + all of bandai1
     python scripts/bench_bvh_io.py --files 100 --quick  # smoke run
@@ -20,14 +27,14 @@ import time
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from mocapnet.corpus import data_root, list_bvh  # noqa: E402
 from mocapnet.evaluate.benchmark import git_commit  # noqa: E402
-from mocapnet.io.bvh import parse_bvh  # noqa: E402
+from mocapnet.io.bvh import format_bvh, parse_bvh, read_bvh  # noqa: E402
+from mocapnet.motion import Motion, Skeleton  # noqa: E402
 
 
 def read_with_bvh_package(text: str) -> tuple[np.ndarray, list[str]]:
@@ -37,10 +44,51 @@ def read_with_bvh_package(text: str) -> tuple[np.ndarray, list[str]]:
     return np.array(mocap.frames, dtype=np.float64), mocap.get_joints_names()
 
 
+def interleaved(ours, theirs, items: list, rounds: int) -> tuple[float, float]:
+    """Total CPU seconds of ``ours(item)`` and ``theirs(item)`` over ``rounds``, alternating which goes first."""
+    t_ours = t_theirs = 0.0
+    for r in range(rounds):
+        for i, item in enumerate(items):
+            for first in (True, False) if (i + r) % 2 else (False, True):
+                t0 = time.process_time()
+                (ours if first else theirs)(item)
+                dt = time.process_time() - t0
+                if first:
+                    t_ours += dt
+                else:
+                    t_theirs += dt
+    return t_ours, t_theirs
+
+
+def synthetic(n_joints: int, chain: bool, seed: int = 0) -> Motion:
+    """A random tree (or a single chain) of ``n_joints`` joints, 3 rotation channels each, 2 frames."""
+    rng = np.random.default_rng(seed)
+    parents = tuple(j - 1 if chain else int(rng.integers(0, j)) if j else -1 for j in range(n_joints))
+    channels = tuple(("Zrotation", "Xrotation", "Yrotation") for _ in range(n_joints))
+    sk = Skeleton(tuple(f"j{j}" for j in range(n_joints)), parents, rng.normal(size=(n_joints, 3)), channels)
+    return Motion(sk, rng.uniform(-170, 170, (2, sk.n_channels)), 30.0, "synthetic")
+
+
+def hierarchy_timings() -> dict:
+    """CPU seconds: parse a 10,000-joint tree; write and read a 1,000-level chain."""
+    text = format_bvh(synthetic(10_000, chain=False))
+    t0 = time.process_time()
+    m = parse_bvh(text, "tree10k.bvh", cm_per_unit=1.0)
+    parse_10k = time.process_time() - t0
+    assert m.skeleton.n_joints == 10_000
+    chain = synthetic(1_000, chain=True)
+    t0 = time.process_time()
+    back = parse_bvh(format_bvh(chain), "chain1000.bvh", cm_per_unit=1.0, unwrap=False)
+    chain_s = time.process_time() - t0
+    assert np.abs(back.channels - chain.channels).max() < 1e-6
+    return {"parse_10k_joint_tree_s": round(parse_10k, 3), "write_read_1000_level_chain_s": round(chain_s, 3)}
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--data-root", type=Path, default=None, help="shared data root (default: MOCAPNET_DATA)")
     parser.add_argument("--files", type=int, default=830, help="bandai2 files to load (default 830)")
+    parser.add_argument("--rounds", type=int, default=3, help="interleaved rounds (default 3)")
     parser.add_argument("--quick", action="store_true", help="skip bandai1")
     parser.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "bvh_io")
     args = parser.parse_args()
@@ -51,49 +99,67 @@ def main() -> None:
     results = {}
     for name, files in sets.items():
         texts = [gzip.open(f, "rb").read().decode() for f in files]
-        frames = 0
-        t0 = time.perf_counter()
-        ours = [parse_bvh(text, f, unwrap=False) for text, f in zip(texts, files)]
-        t_ours = time.perf_counter() - t0
-        t0 = time.perf_counter()
-        theirs = [read_with_bvh_package(text) for text in tqdm(texts, desc=f"bvh package on {name}", unit="file")]
-        t_theirs = time.perf_counter() - t0
-        max_diff = 0.0
-        for m, (arr, names) in zip(ours, theirs):
-            assert list(m.skeleton.names) == names, m.name
+        max_diff, frames = 0.0, 0
+        for text, f in zip(texts, files):
+            m = parse_bvh(text, f, unwrap=False)
+            arr, names = read_with_bvh_package(text)
+            assert list(m.skeleton.names) == names, f
             max_diff = max(max_diff, float(np.abs(m.channels - arr).max()))
             frames += m.n_frames
+        items = list(zip(texts, files))
+        text_ours, text_theirs = interleaved(
+            lambda it: parse_bvh(*it), lambda it: read_with_bvh_package(it[0]), items, args.rounds
+        )
+        file_ours, file_theirs = interleaved(
+            read_bvh, lambda f: read_with_bvh_package(gzip.open(f, "rb").read().decode()), files, args.rounds
+        )
         results[name] = {
             "files": len(files),
             "frames": frames,
-            "mocapnet_s": round(t_ours, 3),
-            "bvh_package_s": round(t_theirs, 3),
-            "speedup": round(t_theirs / t_ours, 1),
+            "rounds": args.rounds,
+            "text_mocapnet_cpu_s": round(text_ours, 3),
+            "text_bvh_package_cpu_s": round(text_theirs, 3),
+            "text_speedup": round(text_theirs / text_ours, 1),
+            "file_mocapnet_cpu_s": round(file_ours, 3),
+            "file_bvh_package_cpu_s": round(file_theirs, 3),
+            "file_speedup": round(file_theirs / file_ours, 1),
             "max_abs_diff": max_diff,
         }
-        print(name, results[name])
-    commit = git_commit(short=True)
+        print(name, results[name], flush=True)
+    hierarchy = hierarchy_timings()
+    print(hierarchy)
     meta = {
         "command": "python " + " ".join(sys.argv),
-        "commit": commit,
+        "commit": git_commit(short=True),
         "machine": f"{platform.processor() or platform.machine()}, {platform.python_version()}",
+        "numpy": np.__version__,
     }
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.with_suffix(".json").write_text(json.dumps({"meta": meta, "results": results}, indent=1) + "\n")
+    payload = {"meta": meta, "results": results, "hierarchy": hierarchy}
+    args.out.with_suffix(".json").write_text(json.dumps(payload, indent=1) + "\n")
     lines = [
-        "# BVH loading: mocapnet vs the PyPI `bvh` package",
+        "# BVH loading: mocapnet vs the PyPI `bvh` package (CPU time, interleaved)",
         "",
-        f"Command: `{meta['command']}` at commit {meta['commit']} on {meta['machine']}.",
-        "Both parse the same in-memory text (gzip excluded) into a float `[T, C]` array + joint names.",
+        f"Command: `{meta['command']}` at commit {meta['commit']} on {meta['machine']}, numpy {meta['numpy']}.",
+        "CPU seconds (`time.process_time`) summed over all files and rounds; the two readers alternate per file.",
+        "text = both parse the same in-memory text (mocapnet with `read_bvh`'s defaults: checks, unit guess,",
+        "unwrapping); file = `read_bvh(path)` vs gzip + the package on the same `.bvh.gz`.",
         "",
-        "| corpus | files | frames | mocapnet s | bvh package s | speed-up | max abs diff |",
-        "|---|---|---|---|---|---|---|",
+        "| corpus | files | frames | rounds | text: mocapnet s | text: bvh s | text speed-up "
+        "| file: mocapnet s | file: bvh s | file speed-up | max abs diff |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for name, r in results.items():
         lines.append(
-            f"| {name} | {r['files']} | {r['frames']} | {r['mocapnet_s']} | {r['bvh_package_s']} | "
-            f"{r['speedup']}× | {r['max_abs_diff']:.1e} |"
+            f"| {name} | {r['files']} | {r['frames']} | {r['rounds']} | {r['text_mocapnet_cpu_s']} | "
+            f"{r['text_bvh_package_cpu_s']} | {r['text_speedup']}× | {r['file_mocapnet_cpu_s']} | "
+            f"{r['file_bvh_package_cpu_s']} | {r['file_speedup']}× | {r['max_abs_diff']:.1e} |"
         )
+    lines += [
+        "",
+        f"Synthetic hierarchies (CPU s): parse of a 10,000-joint tree {hierarchy['parse_10k_joint_tree_s']}; "
+        f"write + read of a 1,000-level chain {hierarchy['write_read_1000_level_chain_s']}.",
+    ]
     args.out.with_suffix(".md").write_text("\n".join(lines) + "\n")
 
 
