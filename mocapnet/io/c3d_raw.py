@@ -153,6 +153,7 @@ def _parse_parameters(path: Path, raw: bytes, start: int, processor: str) -> dic
             raise MocapFileError(f"{path}: parameter section is damaged (unreadable name at byte {pos})")
         offset = int(np.frombuffer(raw[name_end : name_end + 2], dtype=i16)[0])
         body = name_end + 2
+        desc_at = body
         if gid < 0:
             groups[-gid] = name
         else:
@@ -168,10 +169,15 @@ def _parse_parameters(path: Path, raw: bytes, start: int, processor: str) -> dic
             if data_at + size > end:
                 raise MocapFileError(f"{path}: parameter section is damaged ({name} holds more than the file)")
             entries.append((gid, name, Parameter(ptype, dims, bytes(raw[data_at : data_at + size]), data_at)))
+            desc_at = data_at + size
         if offset == 0:
             break
         if offset < 0 or name_end + offset <= pos:
             raise MocapFileError(f"{path}: parameter section is damaged (bad offset {offset} after {name})")
+        if desc_at >= end or desc_at + 1 + raw[desc_at] > name_end + offset:
+            # (ezc3d 1.7.2 hangs on such a file instead of refusing it)
+            what = name if gid < 0 else f"{groups.get(gid, f'GROUP{gid}')}:{name}"
+            raise MocapFileError(f"{path}: parameter section is damaged ({what} runs into the next entry)")
         pos = name_end + offset
     if not groups:
         raise MocapFileError(f"{path}: parameter section holds no parameter group (no POINT data)")
