@@ -148,12 +148,22 @@ def _methods(args: argparse.Namespace) -> int:
 
 
 def _train(args: argparse.Namespace) -> int:
-    import subprocess
+    from mocapnet.nn.train import main as train_main
 
-    script = Path(__file__).resolve().parents[1] / "scripts" / "train.py"
-    if not script.exists():
-        raise FileNotFoundError(f"{script}: training needs a source checkout of mocapnet (scripts/ and conf/)")
-    return subprocess.call([sys.executable, str(script), *args.overrides])
+    print(train_main(args.overrides))
+    return 0
+
+
+def _train_epilog() -> str:
+    """Examples and the experiment configs shipped in mocapnet/conf/experiment (read without importing torch)."""
+    names = sorted(p.stem for p in (Path(__file__).resolve().parent / "conf" / "experiment").glob("*.yaml"))
+    return (
+        "examples:\n  mocapnet train experiment=sample_quick\n"
+        "  mocapnet train experiment=bandai2_ebf trainer.max_time=00:00:20:00   # resumes from last.ckpt\n"
+        "  mocapnet train experiment=bandai2_ebf_mix threads=1 ckpt_path=null   # start afresh\n\n"
+        f"experiments: {', '.join(names)}\n"
+        "Runs go to $MOCAPNET_RUNS/<name> (default runs/<name> under the current directory)."
+    )
 
 
 def _add_parallel_args(parser: argparse.ArgumentParser) -> None:
@@ -233,10 +243,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     tr = sub.add_parser(
         "train",
-        help="train EBF/EBD (runs scripts/train.py with Hydra overrides, e.g. experiment=sample_quick)",
-        description="Train a network from the Hydra configs in conf/; arguments are Hydra overrides.",
-        epilog="examples:\n  mocapnet train experiment=sample_quick\n  mocapnet train experiment=bandai2_ebf "
-        "trainer.max_time=00:00:20:00",
+        help="train EBF/EBD in this process (Hydra overrides, e.g. experiment=sample_quick)",
+        description="Train a network from the Hydra configs packaged in mocapnet/conf; arguments are Hydra "
+        "overrides. Prints the best checkpoint's path.",
+        epilog=_train_epilog(),
         formatter_class=raw,
     )
     tr.add_argument("overrides", nargs="*", help="Hydra overrides, e.g. experiment=bandai2_ebf trainer.max_epochs=5")

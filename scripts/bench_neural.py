@@ -176,7 +176,7 @@ def training_speed(steps: int) -> dict:
 
     from mocapnet.nn.train import build
 
-    with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
+    with initialize_config_dir(config_dir=str(ROOT / "mocapnet" / "conf"), version_base="1.3"):
         cfg = compose("train", overrides=["experiment=bandai2_ebf", "name=bench", "runs_root=/tmp"])
     data, model = build(cfg)
     opt = torch.optim.Adam(model.parameters(), lr=1e-3)

@@ -1,6 +1,6 @@
 """Hydra entry point: evaluate a grid of corpora × corruptions × methods and write a markdown report.
 
-    python scripts/evaluate_grid.py                         # conf/grid/sample.yaml
+    python scripts/evaluate_grid.py                         # mocapnet/conf/grid/sample.yaml
     python scripts/evaluate_grid.py grid=bandai2_noise fold=0
     python scripts/evaluate_grid.py corpora=[sample] corruptions=[gaps] methods=[lerp,spline] repeats=2
 
@@ -19,7 +19,7 @@ from omegaconf import DictConfig, OmegaConf
 ROOT = Path(__file__).resolve().parents[1]
 
 
-@hydra.main(version_base="1.3", config_path="../conf", config_name="evaluate")
+@hydra.main(version_base="1.3", config_path="../mocapnet/conf", config_name="evaluate")
 def main(cfg: DictConfig) -> None:
     from mocapnet.corpus import load_corpus
     from mocapnet.evaluate.benchmark import git_commit

@@ -1,4 +1,4 @@
-"""Train a cleaning network from the Hydra configs in ``conf/``.
+"""Train a cleaning network from the Hydra configs in ``mocapnet/conf/`` (same as ``mocapnet train``).
 
     python scripts/train.py experiment=bandai2_ebf                 # train (resumes if the run exists)
     python scripts/train.py experiment=bandai2_ebf ckpt_path=null  # start afresh
@@ -7,22 +7,14 @@
 
 Runs go to ``$MOCAPNET_RUNS/<name>`` (default ``runs/<name>``). Prints the best checkpoint's path.
 On a shared CPU machine: ``nice -n 10`` and ``threads=1`` or ``2``. jemalloc can be preloaded
-(``apt-get install -y libjemalloc2``, then ``LD_PRELOAD=/usr/lib/x86_64-linux-gnu/libjemalloc.so.2``); it is
-optional and its measured effect on training speed is in ``benchmarks/results/neural.md``.
+(``apt-get install -y libjemalloc2``, then ``LD_PRELOAD=/usr/lib/x86_64-linux-gnu/libjemalloc.so.2``).
 """
 
 from __future__ import annotations
 
-import hydra
-from omegaconf import DictConfig
+import sys
 
-from mocapnet.nn.train import train
-
-
-@hydra.main(version_base="1.3", config_path="../conf", config_name="train")
-def main(cfg: DictConfig) -> None:
-    print(train(cfg))
-
+from mocapnet.cli import main
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main(["train", *sys.argv[1:]]))

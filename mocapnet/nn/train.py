@@ -1,4 +1,8 @@
-"""Training from a composed Hydra config (``conf/train.yaml``); ``scripts/train.py`` is the entry point.
+"""Training from a composed Hydra config (``mocapnet/conf/train.yaml``), in this process:
+``mocapnet train OVERRIDES…`` calls ``main(overrides)`` (``scripts/train.py`` is a thin wrapper of it).
+
+``compose_config(overrides)`` composes the packaged configs with Hydra's compose API (so an installed package
+trains from any directory, and a killed ``mocapnet train`` leaves no child process behind).
 
 ``train(cfg)`` builds the data module and the model from ``cfg.data`` / ``cfg.model`` (Hydra ``_target_``),
 copies the training-set normaliser into the model, and fits with a Lightning ``Trainer`` from
@@ -10,18 +14,50 @@ copies the training-set normaliser into the model, and fits with a Lightning ``T
 from __future__ import annotations
 
 import json
+from collections.abc import Sequence
 from pathlib import Path
 
 import hydra
 import lightning as L
 import torch
+from hydra import compose, initialize_config_dir
+from hydra.core.hydra_config import HydraConfig
+from hydra.errors import HydraException
 from lightning.pytorch.callbacks import LearningRateMonitor, ModelCheckpoint
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig, OmegaConf, open_dict
+from omegaconf.errors import OmegaConfBaseException
 
 from mocapnet.io.atomic import MocapFileError
 from mocapnet.nn.base import CleanerModule
 from mocapnet.nn.checkpoints import read_checkpoint
 from mocapnet.nn.data import MotionDataModule
+
+CONF_DIR = Path(__file__).resolve().parents[1] / "conf"
+
+
+def compose_config(overrides: Sequence[str]) -> DictConfig:
+    """``train.yaml`` composed with Hydra ``overrides`` (e.g. ``experiment=sample_quick``), Hydra's runtime
+    config set so ``${hydra:runtime.choices.*}`` resolves; ValueError naming the problem for an unknown
+    group, option or key, or an override that does not parse."""
+    experiments = sorted(p.stem for p in (CONF_DIR / "experiment").glob("*.yaml"))
+    for item in overrides:
+        key, _, value = item.partition("=")
+        if key.lstrip("+~") == "experiment" and value not in experiments:
+            raise ValueError(f"training config: no experiment {value!r}; the experiments are {', '.join(experiments)}")
+    try:
+        with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3", job_name="train"):
+            cfg = compose("train", overrides=list(overrides), return_hydra_config=True)
+    except (HydraException, OmegaConfBaseException) as exc:
+        raise ValueError(f"training config: {' '.join(str(exc).split())[:300]}") from None
+    HydraConfig.instance().set_config(cfg)
+    with open_dict(cfg):
+        del cfg.hydra
+    return cfg
+
+
+def main(overrides: Sequence[str]) -> Path:
+    """Compose the configs with ``overrides`` and train; return the best checkpoint's path."""
+    return train(compose_config(overrides))
 
 
 def configure_torch(threads: int | None) -> None:

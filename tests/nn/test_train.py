@@ -9,17 +9,14 @@ import hydra
 import lightning as L
 import pytest
 import torch
-from hydra import compose, initialize_config_dir
-from hydra.core.hydra_config import HydraConfig
-from omegaconf import OmegaConf, open_dict
+from omegaconf import OmegaConf
 
 from mocapnet.nn import EBD, EBF, WindowMLP
 from mocapnet.nn.checkpoints import read_checkpoint
 from mocapnet.nn.data import MotionDataModule
-from mocapnet.nn.train import train
+from mocapnet.nn.train import CONF_DIR, compose_config, train
 
-CONF = Path(__file__).resolve().parents[2] / "conf"
-EXPERIMENTS = sorted(p.stem for p in (CONF / "experiment").glob("*.yaml"))
+EXPERIMENTS = sorted(p.stem for p in (CONF_DIR / "experiment").glob("*.yaml"))
 TINY_MODEL = {
     "ebf": ["model.hidden=8", "model.code=8", "model.width=16"],
     "bf": ["model.hidden=8", "model.width=16"],
@@ -40,13 +37,8 @@ QUICK = [
 
 
 def compose_cfg(overrides: list[str]):
-    """Compose ``conf/train.yaml`` as ``scripts/train.py`` would (Hydra's runtime config set)."""
-    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
-        cfg = compose("train", overrides=overrides, return_hydra_config=True)
-    HydraConfig.instance().set_config(cfg)
-    with open_dict(cfg):
-        del cfg.hydra
-    return cfg
+    """Compose ``mocapnet/conf/train.yaml`` as ``mocapnet train`` does."""
+    return compose_config(overrides)
 
 
 def test_every_experiment_exists():
@@ -110,3 +102,25 @@ def test_fixed_seed_is_deterministic_and_resume_matches_uninterrupted_run(tmp_pa
     assert resumed["datamodule_hyper_parameters"]["corpus"] == "sample"
     result = json.loads((tmp_path / "c" / "result.json").read_text())
     assert result["monitor"] == "val/angle_err_deg" and Path(result["best"]).exists()
+
+
+def test_mocapnet_train_runs_in_process_and_writes_under_the_cwd(tmp_path, monkeypatch, capsys):
+    from mocapnet.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.delenv("MOCAPNET_RUNS", raising=False)
+    quick = [o for o in QUICK if o != "data=sample"] + TINY_MODEL["ebf"] + ["trainer.max_epochs=1"]
+    assert main(["train", "experiment=sample_quick", *quick]) == 0
+    best = tmp_path / "runs" / "sample_quick" / "checkpoints" / "best.ckpt"
+    assert best.exists() and str(best.relative_to(tmp_path)) in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("override", ["experiment=no_such_experiment", "trainer.no_such_key=1", "model=zzz"])
+def test_bad_training_override_is_a_one_line_error(override, tmp_path, monkeypatch, capsys):
+    from mocapnet.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    assert main(["train", override]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("mocapnet: error: training config:") and err.count("\n") == 1
+    assert not (tmp_path / "runs").exists()
