@@ -77,8 +77,10 @@ class C3DLayout:
         p = self.parameters.get((group.upper(), name.upper()))
         if p is None or p.type != -1:
             return []
-        width = p.dims[0] if len(p.dims) > 1 else max(len(p.data), 1)
-        return [_text(p.data[i : i + width]) for i in range(0, len(p.data), width)] or [""]
+        width = p.dims[0] if len(p.dims) > 1 else len(p.data)
+        if width == 0:
+            return []
+        return [_text(p.data[i : i + width]) for i in range(0, len(p.data), width)]
 
     def number(self, group: str, name: str) -> float | None:
         """The first value of a numeric parameter, or ``None`` when absent or empty."""
@@ -130,6 +132,29 @@ def _number(params: dict[tuple[str, str], Parameter], processor: str, group: str
     if p.type == 2:
         return float(np.frombuffer(p.data[:2], dtype=_int16(processor))[0])
     return float(_decode_float32(np.frombuffer(p.data[:4], dtype=np.uint8), processor)[0])
+
+
+def _whole(value: float | None, default: int) -> int:
+    """``value`` as a non-negative whole number, ``default`` when absent, not finite, negative or zero."""
+    return int(value) if value is not None and np.isfinite(value) and 0 < value < 2**31 else default
+
+
+def _long_frame_count(params: dict[tuple[str, str], Parameter], processor: str) -> int | None:
+    """Frame count of a recording too long for the header: ``TRIAL:ACTUAL_START_FIELD`` /
+    ``ACTUAL_END_FIELD`` (two 16-bit words each, low word first), else ``POINT:FRAMES`` (int16 read as
+    unsigned, or float)."""
+    start, end = params.get(("TRIAL", "ACTUAL_START_FIELD")), params.get(("TRIAL", "ACTUAL_END_FIELD"))
+    u16 = ">u2" if processor == "mips" else "<u2"
+    if start is not None and end is not None and start.type == end.type == 2 and len(start.data) == len(end.data) == 4:
+        first, last = (int(w[0]) + 65536 * int(w[1]) for w in (np.frombuffer(p.data, u16) for p in (start, end)))
+        if last >= first:
+            return last - first + 1
+    declared = params.get(("POINT", "FRAMES"))
+    if declared is None or declared.type not in (2, 4) or len(declared.data) < declared.type:
+        return None
+    if declared.type == 2:
+        return int(np.frombuffer(declared.data[:2], u16)[0])
+    return _whole(float(_decode_float32(np.frombuffer(declared.data[:4], np.uint8), processor)[0]), 0) or None
 
 
 def _parse_parameters(path: Path, raw: bytes, start: int, processor: str) -> dict[tuple[str, str], Parameter]:
@@ -214,12 +239,12 @@ def read_layout(path: str | os.PathLike) -> C3DLayout:
     header_scale, header_rate = _decode_float32(np.frombuffer(raw[12:16] + raw[20:24], dtype=np.uint8), processor)
     scale = _number(params, processor, "POINT", "SCALE")
     scale = float(header_scale) if scale is None or scale == 0 else scale
-    n_points = int(_number(params, processor, "POINT", "USED") or words[1]) & 0xFFFF
+    if not np.isfinite(scale) or scale == 0:
+        raise MocapFileError(f"{path}: POINT:SCALE is {scale}, expected a non-zero number")
+    n_points = _whole(_number(params, processor, "POINT", "USED"), int(words[1])) & 0xFFFF
     frames = int(words[4]) - int(words[3]) + 1
-    declared = _number(params, processor, "POINT", "FRAMES")
-    if words[4] == 0xFFFF and declared is not None:  # the header's 16-bit last frame overflowed
-        frames = int(declared) % 65536 if declared >= 0 else int(declared) + 65536
-    data_block = int(words[8]) or int(_number(params, processor, "POINT", "DATA_START") or 0)
+    long_count = _long_frame_count(params, processor) if words[4] == 0xFFFF else None
+    data_block = int(words[8]) or _whole(_number(params, processor, "POINT", "DATA_START"), 0)
     data_offset = (data_block - 1) * BLOCK
     if data_block < 1 or data_offset > len(raw):
         raise MocapFileError(f"{path}: data block {data_block} lies outside the file ({len(raw)} bytes)")
@@ -227,10 +252,13 @@ def read_layout(path: str | os.PathLike) -> C3DLayout:
     analog_words = int(words[2])
     channels = _number(params, processor, "ANALOG", "USED")
     rates = _number(params, processor, "ANALOG", "RATE"), _number(params, processor, "POINT", "RATE")
-    if channels is not None and rates[0] and rates[1] and rates[0] > 0 and rates[1] > 0:
-        analog_words = int(channels) * round(rates[0] / rates[1])
+    if channels is not None and all(r is not None and 0 < r < 1e7 for r in rates):
+        analog_words = _whole(channels, 0) * round(rates[0] / rates[1])
     stride = (4 * n_points + analog_words) * (4 if scale < 0 else 2)
-    present = min((len(raw) - data_offset) // stride, frames) if stride else frames
+    in_block = (len(raw) - data_offset) // stride if stride else frames
+    if words[4] == 0xFFFF:  # the header's 16-bit last frame overflowed: a recording of 65,535 frames or more
+        frames = long_count if long_count and long_count > frames else frames
+    present = min(in_block, frames)
     return C3DLayout(
         path, processor, params, n_points, analog_words, scale < 0, abs(scale), data_offset, frames, present,
         int(words[3]), float(header_rate),
