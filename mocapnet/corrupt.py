@@ -7,12 +7,16 @@ over the clean clip.
 
 Point corruptions act on clean ``Markers`` and return new ``Markers`` whose ``visible`` is False where data
 was removed.
+
+A corruption name is parsed once, at the edge (CLI, configs), into a ``Corruption``; every function here
+takes either the object or the name.
 """
 
 from __future__ import annotations
 
 import hashlib
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -40,27 +44,65 @@ ANGLE_CORRUPTIONS = (
 POINT_CORRUPTIONS = ("segment-gap:SEG:S", "marker-gap:S")
 
 
-def check_corruption(corruption: str) -> str:
-    """Return ``corruption`` if it is a known name (``ANGLE_CORRUPTIONS`` or a well-formed point gap), else
-    raise ValueError listing the known ones."""
-    parts = corruption.split(":")
-    ok = (
-        corruption in ANGLE_CORRUPTIONS
-        or (parts[0] == "segment-gap" and len(parts) == 3 and parts[1] in SEGMENTS and _number(parts[2]) is not None)
-        or (parts[0] == "marker-gap" and len(parts) == 2 and _number(parts[1]) is not None)
-    )
-    if not ok:
-        kind, _, arg = corruption.partition("-")
-        ok = kind in ("angular", "uniform") and _number(arg) is not None
-        ok = ok or (kind == "spatial" and arg.endswith("cm") and _number(arg[:-2]) is not None)
-    if not ok:
-        raise ValueError(
-            f"unknown corruption {corruption!r}; known: {', '.join(ANGLE_CORRUPTIONS + POINT_CORRUPTIONS)}"
-        )
-    return corruption
+@dataclass(frozen=True)
+class Corruption:
+    """A parsed corruption name (PROTOCOL.md). ``text`` is the name as written (seeds and tables use it),
+    ``kind`` one of ``KINDS``, ``level`` its number (K for angular/uniform, cm for spatial, seconds for point
+    gaps) and ``segment`` the body segment of a ``segment-gap``."""
+
+    text: str
+    kind: str
+    level: float | None = None
+    segment: str | None = None
+
+    KINDS = ("none", "angular", "uniform", "spatial", "spatial-ends", "bias-const", "bias-sine", "gaps",
+             "gaps-long", "noise+gaps", "segment-gap", "marker-gap")  # fmt: skip
+
+    @classmethod
+    def parse(cls, text: str | Corruption) -> Corruption:
+        """Parse a name (a ``Corruption`` is returned as it is); ValueError listing the known names."""
+        if isinstance(text, Corruption):
+            return text
+        text = str(text)
+        if text in ("none", "spatial-ends", "bias-const", "bias-sine", "gaps", "gaps-long", "noise+gaps"):
+            return cls(text, text)
+        parts = text.split(":")
+        if parts[0] == "segment-gap" and len(parts) == 3 and parts[1] in SEGMENTS and _number(parts[2]) is not None:
+            return cls(text, "segment-gap", _number(parts[2]), parts[1])
+        if parts[0] == "marker-gap" and len(parts) == 2 and _number(parts[1]) is not None:
+            return cls(text, "marker-gap", _number(parts[1]))
+        if parts[0] in ("segment-gap", "marker-gap"):
+            raise ValueError(
+                f"bad point corruption {text!r}; use segment-gap:SEG:SECONDS (SEG in {', '.join(SEGMENTS)}) "
+                "or marker-gap:SECONDS"
+            )
+        kind, _, arg = text.partition("-")
+        if kind in ("angular", "uniform") and _number(arg) is not None:
+            return cls(text, kind, _number(arg))
+        if kind == "spatial" and arg.endswith("cm") and _number(arg[:-2]) is not None:
+            return cls(text, kind, _number(arg[:-2]))
+        raise ValueError(f"unknown corruption {text!r}; known: {', '.join(ANGLE_CORRUPTIONS + POINT_CORRUPTIONS)}")
+
+    def __str__(self) -> str:
+        return self.text
+
+    @property
+    def has_gaps(self) -> bool:
+        """True when it removes samples (the gap error is its headline)."""
+        return self.kind in ("gaps", "gaps-long", "noise+gaps", "segment-gap", "marker-gap")
+
+    @property
+    def is_point_gap(self) -> bool:
+        """``segment-gap`` / ``marker-gap``: the corruptions that also apply to C3D markers."""
+        return self.kind in ("segment-gap", "marker-gap")
 
 
-def seed_for(corpus: str, file: str, repeat: int, corruption: str = "") -> int:
+def check_corruption(corruption: str | Corruption) -> str:
+    """The name of ``corruption`` if it is known (``Corruption.parse``), else ValueError listing the known."""
+    return Corruption.parse(corruption).text
+
+
+def seed_for(corpus: str, file: str, repeat: int, corruption: str | Corruption = "") -> int:
     """Deterministic seed from (corpus, file name, repeat, corruption) so every run scores the same inputs."""
     digest = hashlib.sha256(f"{corpus}|{file}|{repeat}|{corruption}".encode()).digest()
     return int.from_bytes(digest[:8], "little")
@@ -121,25 +163,24 @@ ADDITIVE_NOISE = ("angular-K", "uniform-K", "bias-const", "bias-sine", "noise+ga
 
 
 def additive_noise(
-    corruption: str, channels: np.ndarray, sigma: np.ndarray, fps: float, rng: np.random.Generator
+    corruption: str | Corruption, channels: np.ndarray, sigma: np.ndarray, fps: float, rng: np.random.Generator
 ) -> np.ndarray:
     """``channels [T, C]`` with the additive angle noise of ``corruption`` (``ADDITIVE_NOISE``; for
     ``noise+gaps`` its angular-0.5 part), using per-channel ``sigma [C]`` as ``σ_c`` (0 leaves a channel
     untouched). Raises ValueError for corruptions that are not additive angle noise."""
+    c = Corruption.parse(corruption)
     every = np.ones(channels.shape[1], dtype=bool)
-    kind, _, arg = corruption.partition("-")
-    level = _number(arg)
-    if kind == "angular" and level is not None:
-        return angular_noise(channels, every, level, rng, sigma)
-    if kind == "uniform" and level is not None:
-        return uniform_noise(channels, every, level, rng, sigma)
-    if corruption == "noise+gaps":
+    if c.kind == "angular":
+        return angular_noise(channels, every, c.level, rng, sigma)
+    if c.kind == "uniform":
+        return uniform_noise(channels, every, c.level, rng, sigma)
+    if c.kind == "noise+gaps":
         return angular_noise(channels, every, 0.5, rng, sigma)
-    if corruption == "bias-const":
+    if c.kind == "bias-const":
         return constant_bias(angular_noise(channels, every, 0.5, rng, sigma), every, 0.5, rng, sigma)
-    if corruption == "bias-sine":
+    if c.kind == "bias-sine":
         return sine_bias(angular_noise(channels, every, 0.5, rng, sigma), every, 0.5, fps, rng, sigma)
-    raise ValueError(f"{corruption!r} is not an additive angle noise ({', '.join(ADDITIVE_NOISE)})")
+    raise ValueError(f"{c.text!r} is not an additive angle noise ({', '.join(ADDITIVE_NOISE)})")
 
 
 def spatial_noise(motion: Motion, std_cm: float | np.ndarray, rng: np.random.Generator) -> np.ndarray:
@@ -274,54 +315,54 @@ def _apply_mask(channels: np.ndarray, mask: np.ndarray) -> np.ndarray:
     return out
 
 
-def corrupt_motion(motion: Motion, corruption: str, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-    """Apply a named angle corruption (``ANGLE_CORRUPTIONS``) to a clean motion.
+def corrupt_motion(
+    motion: Motion, corruption: str | Corruption, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray]:
+    """Apply an angle corruption (``ANGLE_CORRUPTIONS``, or a point gap on the skeleton's segments) to a
+    clean motion.
 
     Returns ``(noisy [T, C], mask [T, C])`` with NaN in ``noisy`` where ``mask`` is True.
     """
+    c = Corruption.parse(corruption)
     ch = motion.channels
     scored = motion.skeleton.scored_mask
     no_gaps = np.zeros(ch.shape, dtype=bool)
-    if corruption == "none":
-        return ch.copy(), no_gaps
-    kind, _, arg = corruption.partition("-")
-    level = _number(arg.removesuffix("cm"))
-    if (kind in ("angular", "uniform") and level is not None) or corruption in ("bias-const", "bias-sine"):
-        return additive_noise(corruption, ch, channel_std(ch) * scored, motion.fps, rng), no_gaps
-    if corruption == "spatial-ends":
-        return spatial_noise(motion, end_joint_std(motion), rng), no_gaps
-    if kind == "spatial" and arg.endswith("cm") and level is not None:
-        return spatial_noise(motion, level, rng), no_gaps
     n_j = motion.skeleton.n_joints
-    if corruption == "gaps":
+    if c.kind == "none":
+        return ch.copy(), no_gaps
+    if c.kind in ("angular", "uniform", "bias-const", "bias-sine"):
+        return additive_noise(c, ch, channel_std(ch) * scored, motion.fps, rng), no_gaps
+    if c.kind == "spatial-ends":
+        return spatial_noise(motion, end_joint_std(motion), rng), no_gaps
+    if c.kind == "spatial":
+        return spatial_noise(motion, c.level, rng), no_gaps
+    if c.kind == "gaps":
         mask = joint_mask_to_channels(motion, gap_mask(motion.n_frames, n_j, motion.fps, rng))
         return _apply_mask(ch, mask), mask
-    if corruption == "gaps-long":
+    if c.kind == "gaps-long":
         joints = motion.skeleton.scored_joints
         mask = joint_mask_to_channels(motion, long_gap_mask(motion.n_frames, joints, n_j, motion.fps, rng))
         return _apply_mask(ch, mask), mask
-    if corruption == "noise+gaps":
+    if c.kind == "noise+gaps":
         noisy = angular_noise(ch, scored, 0.5, rng)
         mask = joint_mask_to_channels(motion, gap_mask(motion.n_frames, n_j, motion.fps, rng))
         return _apply_mask(noisy, mask), mask
-    if kind in ("segment", "marker"):
-        joint_mask = point_gap_mask(
-            corruption,
-            motion.n_frames,
-            motion.fps,
-            rng,
-            lambda seg: skeleton_segment(motion.skeleton, seg),
-            motion.skeleton.n_joints,
-            list(motion.skeleton.scored_joints),
-            motion.name,
-        )
-        mask = joint_mask_to_channels(motion, joint_mask)
-        return _apply_mask(ch, mask), mask
-    raise ValueError(f"unknown corruption {corruption!r}; known: {', '.join(ANGLE_CORRUPTIONS + POINT_CORRUPTIONS)}")
+    joint_mask = point_gap_mask(
+        c,
+        motion.n_frames,
+        motion.fps,
+        rng,
+        lambda seg: skeleton_segment(motion.skeleton, seg),
+        n_j,
+        list(motion.skeleton.scored_joints),
+        motion.name,
+    )
+    mask = joint_mask_to_channels(motion, joint_mask)
+    return _apply_mask(ch, mask), mask
 
 
 def point_gap_mask(
-    corruption: str,
+    corruption: str | Corruption,
     n_frames: int,
     fps: float,
     rng: np.random.Generator,
@@ -335,22 +376,14 @@ def point_gap_mask(
     ``segment_tracks(seg)`` gives the track indices of a segment; ``candidates`` the tracks a single
     marker gap may pick from.
     """
-    parts = corruption.split(":")
-    if parts[0] == "segment-gap" and len(parts) == 3 and parts[1] in SEGMENTS:
-        tracks = segment_tracks(parts[1])
-        seconds = float(parts[2])
-    elif parts[0] == "marker-gap" and len(parts) == 2:
-        tracks = [int(rng.choice(candidates))]
-        seconds = float(parts[1])
-    else:
-        raise ValueError(
-            f"bad point corruption {corruption!r}; use segment-gap:SEG:SECONDS (SEG in {', '.join(SEGMENTS)}) "
-            "or marker-gap:SECONDS"
-        )
-    return window_gap_mask(n_frames, tracks, n_tracks, seconds, fps, rng, name=name)
+    c = Corruption.parse(corruption)
+    if not c.is_point_gap:
+        raise ValueError(f"{c.text!r} is not a point gap; use segment-gap:SEG:SECONDS or marker-gap:SECONDS")
+    tracks = segment_tracks(c.segment) if c.kind == "segment-gap" else [int(rng.choice(candidates))]
+    return window_gap_mask(n_frames, tracks, n_tracks, c.level, fps, rng, name=name)
 
 
-def corrupt_markers(markers: Markers, corruption: str, rng: np.random.Generator) -> Markers:
+def corrupt_markers(markers: Markers, corruption: str | Corruption, rng: np.random.Generator) -> Markers:
     """Remove data from clean markers by a point corruption; returns Markers with ``visible`` reduced."""
     candidates = list(np.flatnonzero(markers.visible.all(axis=0)))
     mask = point_gap_mask(

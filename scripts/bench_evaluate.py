@@ -34,7 +34,7 @@ SCORES = ("angle_err_deg", "gap_err_deg", "rot_err_deg", "pos_err_cm")
 # `mocapnet evaluate ARGS`, its --csv rows dumped at full precision (JSON) instead of the CSV's 6 digits.
 CHILD = """import json, sys
 from mocapnet.evaluate import report
-report.write_csv = lambda path, rows: open(path, "w").write(json.dumps(rows))
+report.write_csv = lambda path, rows: __import__("pathlib").Path(path).write_text(json.dumps(rows))
 from mocapnet.cli import main
 sys.exit(main(sys.argv[1:]))"""
 

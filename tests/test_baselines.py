@@ -108,3 +108,21 @@ def test_gaussian_tuned_minimises_the_reported_figure(cmu):
             sse[g] += ((gaussian_smooth(lerp_fill(noisy, mask), sigma, m.fps) - m.channels) ** 2).sum(axis=0)
     by_sse = np.asarray(SIGMA_GRID_S)[np.argmin(sse, axis=0)]
     assert tuned < _reported_figure(clips, by_sse)
+
+
+def test_method_spec_parses_once_with_windows_paths():
+    from mocapnet.methods.registry import MethodSpec
+
+    spec = MethodSpec.parse("ebf=C:/runs/x.ckpt")
+    assert (spec.name, spec.checkpoints, dict(spec.options)) == ("ebf", ("C:/runs/x.ckpt",), {})
+    spec = MethodSpec.parse(r"ebd+ebf=C:\runs\d.ckpt,D:/f.ckpt:mode=windowed")
+    assert spec.checkpoints == (r"C:\runs\d.ckpt", "D:/f.ckpt") and dict(spec.options) == {"mode": "windowed"}
+    assert str(spec) == r"ebd+ebf=C:\runs\d.ckpt,D:/f.ckpt:mode=windowed"  # as written
+    assert MethodSpec.parse(spec) is spec
+    assert MethodSpec.parse("knn:k=8").with_options(database="/db").canonical() == "knn:k=8,database=/db"
+    assert MethodSpec.parse("ebf").with_checkpoints(["a.ckpt"]).canonical() == "ebf=a.ckpt"
+    assert build_method(MethodSpec.parse("lerp")).name == "lerp"
+    with pytest.raises(ValueError, match="no method name"):
+        MethodSpec.parse(":k=1")
+    with pytest.raises(ValueError, match="must be key=value"):
+        MethodSpec.parse("knn:k")

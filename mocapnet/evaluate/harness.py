@@ -16,13 +16,13 @@ from pathlib import Path
 import numpy as np
 
 from mocapnet.corpus import Corpus, load_corpus, style_label
-from mocapnet.corrupt import ANGLE_CORRUPTIONS, check_corruption, corrupt_markers, corrupt_motion, seed_for
+from mocapnet.corrupt import Corruption, corrupt_markers, corrupt_motion, seed_for
 from mocapnet.evaluate import metrics
+from mocapnet.fill import lerp_fill
 from mocapnet.io.atomic import MocapFileError
 from mocapnet.io.c3d import read_c3d
 from mocapnet.kinematics import global_transforms, inverse_kinematics, joint_positions, local_rotations
-from mocapnet.methods.baselines import lerp_fill
-from mocapnet.methods.registry import Method, MethodContext, build_method, parse_method, spaces_of
+from mocapnet.methods.registry import Method, MethodContext, MethodSpec, build_method, spaces_of
 from mocapnet.motion import Markers, Motion
 
 ROW_FIELDS = (
@@ -42,8 +42,9 @@ GAUSSIANS = ("gaussian-58ms", "gaussian-125ms", "gaussian-tuned")
 CLIPS_PER_TASK = 8  # clips scored by one Dask task (amortises the per-task overhead)
 
 
-def has_gaps(corruption: str) -> bool:
-    return "gap" in corruption
+def has_gaps(corruption: str | Corruption) -> bool:
+    """True when the corruption removes samples (``Corruption.has_gaps``)."""
+    return Corruption.parse(corruption).has_gaps
 
 
 @dataclass(frozen=True)
@@ -61,19 +62,20 @@ class Reference:
         return self.also + self.methods
 
 
-def reference(corruption: str, space: str) -> Reference:
+def reference(corruption: str | Corruption, space: str) -> Reference:
     """The reference of a corruption: the best of the three Gaussians (58 ms, 125 ms, tuned) for noise,
     lerp + Gaussian 58 ms for ``noise+gaps``, lerp for gaps and for point data."""
+    c = Corruption.parse(corruption)
     if space == "points":
         return Reference("point_err_cm", ("lerp",))
-    if corruption == "noise+gaps":
+    if c.kind == "noise+gaps":
         return Reference("gap_err_deg", ("lerp+gaussian-58ms",), also=("lerp",))
-    if has_gaps(corruption):
+    if c.has_gaps:
         return Reference("gap_err_deg", ("lerp",))
     return Reference("angle_err_deg", GAUSSIANS, also=("noisy",))
 
 
-def reference_methods(corruption: str, space: str) -> tuple[str, ...]:
+def reference_methods(corruption: str | Corruption, space: str) -> tuple[str, ...]:
     """Baselines every table carries so that ratios can be formed (``reference(...).carried``)."""
     return reference(corruption, space).carried
 
@@ -92,9 +94,11 @@ class Evaluation:
     repeats: int = 1
 
 
-def _row(method: str, corruption: str, file: str, repeat: int, frames: int, seconds: float, **scores: float) -> dict:
+def _row(
+    method: str, corruption: str | Corruption, file: str, repeat: int, frames: int, seconds: float, **scores: float
+) -> dict:
     """One CSV row; metrics not given are NaN."""
-    row = {"method": method, "corruption": corruption, "file": file, "repeat": repeat}
+    row = {"method": method, "corruption": str(corruption), "file": file, "repeat": repeat}
     row.update({k: float(scores.get(k, float("nan"))) for k in ROW_FIELDS[4:9]})
     row.update(frames=frames, seconds=seconds)
     return row
@@ -150,7 +154,7 @@ def _motion_train_as_markers(train: Sequence[Motion]) -> list[Markers]:
 
 
 def _scored_chunks(
-    score: Callable, clips: Sequence, shared: tuple, parallel, progress: bool, corruption: str
+    score: Callable, clips: Sequence, shared: tuple, parallel, progress: bool, corruption: Corruption
 ) -> tuple[list[dict], list[tuple[str, str]]]:
     """Run ``score(chunk, *shared) -> (rows, skipped)`` over chunks of ``clips`` (in this process, or on Dask
     with ``parallel``) and concatenate the results in clip order."""
@@ -167,7 +171,11 @@ def _scored_chunks(
 
 
 def score_motions(
-    clips: Sequence[Motion], built: Sequence[tuple[str, Callable]], corpus: str, corruption: str, repeats: int
+    clips: Sequence[Motion],
+    built: Sequence[tuple[str, Callable]],
+    corpus: str,
+    corruption: Corruption,
+    repeats: int,
 ) -> tuple[list[dict], list[tuple[str, str]]]:
     """Rows of every built angle method on ``repeats`` corrupted copies of each clip (seeds from the corpus,
     clip name, repeat and corruption), and the clips skipped with the reason."""
@@ -218,8 +226,8 @@ def evaluate_angles(
     corpus: Corpus,
     clips: Sequence[Motion],
     train: Sequence[Motion],
-    corruption: str,
-    methods: Sequence[str],
+    corruption: str | Corruption,
+    methods: Sequence[str | MethodSpec],
     repeats: int,
     progress: bool = True,
     parallel=None,
@@ -229,16 +237,17 @@ def evaluate_angles(
     Methods are built (and tuned) once here; ``parallel`` (a ``mocapnet.parallel.Parallel``) scores the clips
     on Dask workers, default in this process. Rows are in clip order either way.
     """
-    context = MethodContext(train=train, corpus=corpus.name, corruption=corruption)
+    corruption = Corruption.parse(corruption)
+    context = MethodContext(train=train, corpus=corpus.name, corruption=corruption.text)
     point_context: MethodContext | None = None
     built: list[tuple[str, Callable]] = []
-    for text in methods:
-        if "angles" in spaces_of(parse_method(text)[0]):
-            built.append((text, build_method(text, context).clean))
+    for spec in map(MethodSpec.parse, methods):
+        if "angles" in spaces_of(spec.name):
+            built.append((str(spec), build_method(spec, context).clean))
             continue
         if point_context is None:
-            point_context = MethodContext(_motion_train_as_markers(train), corpus.name, corruption)
-        built.append((text, _points_method_as_angles(build_method(text, point_context))))
+            point_context = MethodContext(_motion_train_as_markers(train), corpus.name, corruption.text)
+        built.append((str(spec), _points_method_as_angles(build_method(spec, point_context))))
     shared = (built, corpus.name, corruption, repeats)
     return _scored_chunks(score_motions, clips, shared, parallel, progress, corruption)
 
@@ -260,7 +269,11 @@ def load_c3d_folder(data: str | Path, progress: bool = True) -> tuple[list[Marke
 
 
 def score_markers(
-    clips: Sequence[Markers], built: Sequence[tuple[str, Callable]], corpus: str, corruption: str, repeats: int
+    clips: Sequence[Markers],
+    built: Sequence[tuple[str, Callable]],
+    corpus: str,
+    corruption: Corruption,
+    repeats: int,
 ) -> tuple[list[dict], list[tuple[str, str]]]:
     """Rows of every built point method on ``repeats`` corrupted copies of each complete marker clip."""
     rows, skipped = [], []
@@ -284,8 +297,8 @@ def score_markers(
 
 def evaluate_points(
     clips: Sequence[Markers],
-    corruption: str,
-    methods: Sequence[str],
+    corruption: str | Corruption,
+    methods: Sequence[str | MethodSpec],
     repeats: int,
     corpus: str,
     progress: bool = True,
@@ -301,8 +314,10 @@ def evaluate_points(
         keep = np.flatnonzero(m.visible.all(axis=0))
         if keep.size:
             complete.append(m.select(keep))
-    context = MethodContext(train=complete, corpus=corpus, corruption=corruption)
-    built = [(text, build_method(text, context, space="points").clean) for text in methods]
+    corruption = Corruption.parse(corruption)
+    context = MethodContext(train=complete, corpus=corpus, corruption=corruption.text)
+    specs = [MethodSpec.parse(m) for m in methods]
+    built = [(str(spec), build_method(spec, context, space="points").clean) for spec in specs]
     shared = (built, corpus, corruption, repeats)
     return _scored_chunks(score_markers, complete, shared, parallel, progress, corruption)
 
@@ -312,8 +327,8 @@ def evaluate_points(
 
 def evaluate(
     data: str,
-    corruption: str,
-    methods: Sequence[str],
+    corruption: str | Corruption,
+    methods: Sequence[str | MethodSpec],
     repeats: int = 5,
     fold: int | None = None,
     limit: int | None = None,
@@ -331,16 +346,18 @@ def evaluate(
     ``mocapnet.parallel.Parallel``) scores clips on Dask workers; the rows are the same as in this process
     (default) but for the ``seconds`` column.
     """
-    check_corruption(corruption)
+    corruption = Corruption.parse(corruption)
+    specs = [MethodSpec.parse(m) for m in methods]
+    asked = [str(s) for s in specs]
     if is_c3d_data(data):
-        if corruption in ANGLE_CORRUPTIONS:
-            raise ValueError(f"{data}: C3D data takes segment-gap:SEG:S or marker-gap:S, not {corruption!r}")
+        if not corruption.is_point_gap:
+            raise ValueError(f"{data}: C3D data takes segment-gap:SEG:S or marker-gap:S, not {corruption.text!r}")
         clips, skipped = load_c3d_folder(data, progress)
         if limit:
             clips = clips[:limit]
-        wanted = list(dict.fromkeys(list(methods) + list(reference_methods(corruption, "points"))))
+        wanted = list(dict.fromkeys(asked + list(reference_methods(corruption, "points"))))
         rows, skipped2 = evaluate_points(clips, corruption, wanted, repeats, Path(str(data)).name, progress, parallel)
-        return Evaluation(str(data), corruption, "points", wanted, rows, skipped + skipped2, None, repeats)
+        return Evaluation(str(data), corruption.text, "points", wanted, rows, skipped + skipped2, None, repeats)
     corpus = corpus or load_corpus(data, progress=progress, limit=limit)
     train, _, test = corpus.split(fold if fold is not None else 0)
     clips = test if fold is not None else corpus.motions
@@ -348,8 +365,8 @@ def evaluate(
         clips = [m for m in clips if style_label(m.name) == style]
         if not clips:
             raise ValueError(f"{corpus.name}: no clip of style {style!r} among the clips to score")
-    wanted = list(dict.fromkeys(list(methods) + list(reference_methods(corruption, "angles"))))
-    if not train and "gaussian-tuned" in wanted and "gaussian-tuned" not in methods:
+    wanted = list(dict.fromkeys(asked + list(reference_methods(corruption, "angles"))))
+    if not train and "gaussian-tuned" in wanted and "gaussian-tuned" not in asked:
         wanted.remove("gaussian-tuned")  # a reference that needs training clips, and there are none
         skipped = [("gaussian-tuned", "gaussian-tuned: left out of the reference, no training clips")]
     else:
@@ -358,5 +375,5 @@ def evaluate(
         warnings.simplefilter("ignore", RuntimeWarning)
         rows, skipped2 = evaluate_angles(corpus, clips, train, corruption, wanted, repeats, progress, parallel)
     return Evaluation(
-        corpus.name, corruption, "angles", wanted, rows, corpus.skipped + skipped + skipped2, fold, repeats
+        corpus.name, corruption.text, "angles", wanted, rows, corpus.skipped + skipped + skipped2, fold, repeats
     )

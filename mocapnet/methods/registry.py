@@ -7,15 +7,21 @@ Two kinds of method, by the space they work in:
 * ``"points"``: ``clean(noisy: Markers) -> [T, M, 3]`` — missing samples are ``~noisy.visible`` (NaN in
   ``noisy.points``); returns every point filled, in cm, visible samples unchanged.
 
-A method string is ``name``, ``name:key=value,key=value`` (options) or ``name=path[,path]`` (checkpoints),
-e.g. ``gaussian-58ms``, ``knn:k=8``, ``ebf=run/last.ckpt``.
+A method string is ``name``, ``name:key=value,key=value`` (options), ``name=path[,path]`` (checkpoints) or
+both, ``name=path[,path]:key=value`` — e.g. ``gaussian-58ms``, ``knn:k=8``, ``ebf=run/last.ckpt``,
+``ebf=C:/runs/x.ckpt:mode=windowed``. It is parsed once, at the edge (CLI, configs), into a ``MethodSpec``;
+every function taking a method accepts either.
+
+Method modules register themselves (``register``) when imported; ``_LAZY`` names the module of each method
+so that the registry imports it on first use (no import of the method modules here: they import this one).
 """
 
 from __future__ import annotations
 
 import ast
 import importlib
-from collections.abc import Callable, Sequence
+import re
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -37,11 +43,71 @@ class MethodContext:
 
 
 @dataclass(frozen=True)
-class MethodSpec:
+class MethodEntry:
+    """A registered method in one space: ``factory(context, **options) -> clean`` and a one-line help."""
+
     name: str
     space: str
     factory: Callable[..., Callable]
     help: str
+
+
+# An option list starts at a ':' followed by `key=` (a drive letter's ':' is followed by '/' or '\').
+_OPTIONS_START = re.compile(r":(?=\s*[A-Za-z_]\w*\s*=)")
+
+
+@dataclass(frozen=True)
+class MethodSpec:
+    """A parsed method string (module docstring): ``name``, ``checkpoints`` and ``options``; ``str()`` gives
+    the text as written (what tables and CSV rows show)."""
+
+    name: str
+    options: Mapping[str, Any] = field(default_factory=dict)
+    checkpoints: tuple[str, ...] = ()
+    text: str = ""
+
+    @classmethod
+    def parse(cls, text: str | MethodSpec) -> MethodSpec:
+        """Parse ``text`` (a ``MethodSpec`` is returned as it is). Raises ValueError for an empty name or an
+        option that is not ``key=value``."""
+        if isinstance(text, MethodSpec):
+            return text
+        text = text.strip()
+        cut = min((i for i in (text.find("="), text.find(":")) if i >= 0), default=len(text))
+        name, sep, rest = text[:cut].strip(), text[cut : cut + 1], text[cut + 1 :]
+        if not name:
+            raise ValueError(f"method {text!r}: no method name")
+        paths, opts = "", ""
+        if sep == "=":
+            found = _OPTIONS_START.search(rest)
+            paths, opts = (rest[: found.start()], rest[found.end() :]) if found else (rest, "")
+        elif sep == ":":
+            opts = rest
+        checkpoints = tuple(p.strip() for p in paths.split(",") if p.strip())
+        return cls(name, _parse_options(text, opts), checkpoints, text)
+
+    def __str__(self) -> str:
+        return self.text or self.canonical()
+
+    def canonical(self) -> str:
+        """``name[=ckpt,…][:key=value,…]`` written from the parts."""
+        text = self.name + ("=" + ",".join(self.checkpoints) if self.checkpoints else "")
+        if self.options:
+            text += ":" + ",".join(f"{k}={v}" for k, v in self.options.items())
+        return text
+
+    def with_checkpoints(self, paths: Sequence[str]) -> MethodSpec:
+        """The same method with other checkpoints (e.g. from ``--model``)."""
+        return MethodSpec(self.name, dict(self.options), tuple(paths))
+
+    def with_options(self, **options: Any) -> MethodSpec:
+        """The same method with ``options`` added or replaced."""
+        return MethodSpec(self.name, {**self.options, **options}, self.checkpoints)
+
+    def factory_options(self) -> dict[str, Any]:
+        """Keyword arguments of the factory: the options, and the checkpoints under ``"checkpoints"``."""
+        extra = {"checkpoints": list(self.checkpoints)} if self.checkpoints else {}
+        return {**self.options, **extra}
 
 
 @dataclass
@@ -54,9 +120,16 @@ class Method:
     options: dict[str, Any] = field(default_factory=dict)
 
 
-_REGISTRY: dict[str, dict[str, MethodSpec]] = {}  # name -> space -> spec
+_REGISTRY: dict[str, dict[str, MethodEntry]] = {}  # name -> space -> entry
 # Methods defined in modules that are imported only when asked for (keeps torch out of `import mocapnet`).
 _LAZY: dict[str, str] = {
+    "noisy": "mocapnet.methods.baselines",
+    "gaussian-58ms": "mocapnet.methods.baselines",
+    "gaussian-125ms": "mocapnet.methods.baselines",
+    "gaussian-tuned": "mocapnet.methods.baselines",
+    "lerp+gaussian-58ms": "mocapnet.methods.baselines",
+    "lerp": "mocapnet.methods.baselines",
+    "spline": "mocapnet.methods.baselines",
     "hold": "mocapnet.methods.extrapolate",
     "extrapolate": "mocapnet.methods.extrapolate",
     "extrapolate+cm": "mocapnet.methods.extrapolate",
@@ -80,14 +153,10 @@ def register(name: str, space: str, help: str) -> Callable:
         raise ValueError(f"space must be one of {SPACES}, got {space!r}")
 
     def deco(factory: Callable) -> Callable:
-        _REGISTRY.setdefault(name, {})[space] = MethodSpec(name, space, factory, help)
+        _REGISTRY.setdefault(name, {})[space] = MethodEntry(name, space, factory, help)
         return factory
 
     return deco
-
-
-def _ensure_builtin() -> None:
-    import mocapnet.methods.baselines  # noqa: F401  (registers the baselines)
 
 
 def _parse_options(text: str, rest: str) -> dict[str, Any]:
@@ -103,25 +172,14 @@ def _parse_options(text: str, rest: str) -> dict[str, Any]:
     return options
 
 
-def parse_method(text: str) -> tuple[str, dict[str, Any]]:
-    """Split ``name:k=v,...``, ``name=ckpt[,ckpt]`` or both (``name=ckpt[,ckpt]:k=v,...``) into the name and
-    an options dict (checkpoints under ``"checkpoints"``)."""
-    text = text.strip()
-    if ":" in text and ("=" not in text or text.index(":") < text.index("=")):
-        name, _, rest = text.partition(":")
-        return name.strip(), _parse_options(text, rest)
-    if "=" in text:
-        name, _, rest = text.partition("=")
-        paths, _, rest = rest.partition(":")
-        options = _parse_options(text, rest)
-        options["checkpoints"] = [p.strip() for p in paths.split(",") if p.strip()]
-        return name.strip(), options
-    return text, {}
+def parse_method(text: str | MethodSpec) -> tuple[str, dict[str, Any]]:
+    """The name and factory options (checkpoints under ``"checkpoints"``) of a method string."""
+    spec = MethodSpec.parse(text)
+    return spec.name, spec.factory_options()
 
 
-def available() -> list[MethodSpec]:
+def available() -> list[MethodEntry]:
     """Every registered method and space (imports the lazy modules that can be imported)."""
-    _ensure_builtin()
     for module in sorted(set(_LAZY.values())):
         try:
             importlib.import_module(module)
@@ -132,8 +190,7 @@ def available() -> list[MethodSpec]:
 
 def spaces_of(name: str) -> tuple[str, ...]:
     """The spaces (``"angles"``, ``"points"``) a method name is registered for."""
-    _ensure_builtin()
-    if name not in _REGISTRY and name in _LAZY:
+    if name in _LAZY:
         importlib.import_module(_LAZY[name])
     if name not in _REGISTRY:
         known = sorted(set(_REGISTRY) | set(_LAZY))
@@ -141,8 +198,8 @@ def spaces_of(name: str) -> tuple[str, ...]:
     return tuple(s for s in SPACES if s in _REGISTRY[name])
 
 
-def get_spec(name: str, space: str | None = None) -> MethodSpec:
-    """The spec of ``name`` in ``space`` (default: angles when it has both). Raises KeyError naming the
+def get_spec(name: str, space: str | None = None) -> MethodEntry:
+    """The registry entry of ``name`` in ``space`` (default: angles when it has both). Raises KeyError naming the
     known methods, or ValueError when the method does not work in ``space``."""
     spaces = spaces_of(name)
     if space is None:
@@ -152,12 +209,13 @@ def get_spec(name: str, space: str | None = None) -> MethodSpec:
     return _REGISTRY[name][space]
 
 
-def build_method(text: str, context: MethodContext | None = None, space: str | None = None) -> Method:
-    """Build a method from its string (see module docstring), in ``space`` when it has several."""
-    name, options = parse_method(text)
-    spec = get_spec(name, space)
+def build_method(method: str | MethodSpec, context: MethodContext | None = None, space: str | None = None) -> Method:
+    """Build a method from its spec or string (see module docstring), in ``space`` when it has several."""
+    spec = MethodSpec.parse(method)
+    entry = get_spec(spec.name, space)
+    options = spec.factory_options()
     try:
-        clean = spec.factory(context or MethodContext(), **options)
+        clean = entry.factory(context or MethodContext(), **options)
     except TypeError as exc:
-        raise ValueError(f"method {text!r}: {exc}") from exc
-    return Method(text, spec.space, clean, options)
+        raise ValueError(f"method {str(spec)!r}: {exc}") from exc
+    return Method(str(spec), entry.space, clean, options)

@@ -1,0 +1,73 @@
+"""Fill and smoothing primitives on arrays ``[T, C]`` (mask True = missing), shared by the methods
+(``mocapnet.methods``) and the networks (``mocapnet.nn``), which both sit above this module. Pure functions in
+the style of ``scipy.ndimage``: arrays in, arrays out, no state."""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.interpolate import CubicSpline
+from scipy.ndimage import gaussian_filter1d
+
+
+def runs(flags: np.ndarray) -> list[tuple[int, int]]:
+    """``[start, stop)`` of every run of True in a 1-D boolean array (Python ints)."""
+    edges = np.diff(np.concatenate([[0], np.asarray(flags).astype(np.int8), [0]]))
+    return list(zip(np.flatnonzero(edges == 1).tolist(), np.flatnonzero(edges == -1).tolist()))
+
+
+def gaussian_smooth(channels: np.ndarray, sigma_s: float | np.ndarray, fps: float) -> np.ndarray:
+    """Gaussian smoothing along time of ``channels [T, C]`` with std ``sigma_s`` seconds (scalar or ``[C]``).
+
+    Edges are padded with the nearest value. ``sigma_s = 0`` returns the input.
+    """
+    sig = np.broadcast_to(np.asarray(sigma_s, dtype=np.float64) * fps, (channels.shape[1],))
+    out = channels.astype(np.float64, copy=True)
+    for value in np.unique(sig):
+        if value <= 0:
+            continue
+        cols = sig == value
+        out[:, cols] = gaussian_filter1d(channels[:, cols], sigma=value, axis=0, mode="nearest")
+    return out
+
+
+def mask_groups(mask: np.ndarray) -> dict[bytes, np.ndarray]:
+    """Columns of ``mask [T, C]`` grouped by identical missing pattern (channels of one joint share one)."""
+    groups: dict[bytes, list[int]] = {}
+    for c in np.flatnonzero(mask.any(axis=0)):
+        groups.setdefault(np.packbits(mask[:, c]).tobytes(), []).append(c)
+    return {k: np.array(v) for k, v in groups.items()}
+
+
+def lerp_fill(channels: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """Linear interpolation over the masked samples of ``channels [T, C]`` (mask True = missing).
+
+    Missing samples before the first / after the last observed one take the nearest observed value.
+    Columns with no observed sample are left as they are.
+    """
+    out = np.array(channels, dtype=np.float64, copy=True)
+    t = np.arange(out.shape[0])
+    for cols in mask_groups(mask).values():
+        miss = mask[:, cols[0]]
+        if miss.all():
+            continue
+        for c in cols:
+            out[miss, c] = np.interp(t[miss], t[~miss], out[~miss, c])
+    return out
+
+
+def spline_fill(channels: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """Cubic-spline interpolation (scipy ``CubicSpline``, not-a-knot) over masked samples of ``[T, C]``;
+    falls back to linear where fewer than 4 samples are observed, and holds values beyond the ends."""
+    out = np.array(channels, dtype=np.float64, copy=True)
+    t = np.arange(out.shape[0])
+    for cols in mask_groups(mask).values():
+        miss = mask[:, cols[0]]
+        seen = ~miss
+        if seen.sum() < 4:
+            out[:, cols] = lerp_fill(out[:, cols], mask[:, cols])
+            continue
+        spline = CubicSpline(t[seen], out[seen][:, cols], axis=0)
+        inside = miss & (t > t[seen][0]) & (t < t[seen][-1])
+        out[np.ix_(inside, cols)] = spline(t[inside])
+        out[:, cols] = lerp_fill(out[:, cols], mask[:, cols] & ~inside[:, None])
+    return out
