@@ -3,12 +3,14 @@
 Runs the same command line three times as child processes and takes each one's CPU time (user + system of
 the process and every worker it started, from ``getrusage(RUSAGE_CHILDREN)``):
 
-* ``before``: the harness at ``--old`` (default 58b4b19, checked out with ``git worktree`` into a temporary
-  folder and put first on ``PYTHONPATH``), in one process, as it was;
-* ``after, 1 process``: this checkout with ``--workers 0`` (the vectorised scoring alone);
-* ``after, Dask``: this checkout with its default, one worker process per core.
+* ``before``: the harness at ``--old`` (default 58b4b19), in one process, as it was;
+* ``after, 1 process``: the harness at ``--new`` (default HEAD) with ``--workers 0`` (vectorised scoring);
+* ``after, Dask``: the same with its default, one worker process per core.
 
-Scores must agree to 1e-9 (every row of the CSVs). Threads: 1 per process (``mocapnet.threads``).
+Each commit is checked out with ``git worktree`` into a temporary folder and put first on the path, so edits
+in the working tree during the run change nothing. The rows both runs hold (same method, file, repeat) must
+agree to 1e-9; since the one reference rule, ``after`` also scores ``gaussian-tuned`` (a reference for noise),
+and its CPU time includes tuning and scoring it. Threads: 1 per process (``mocapnet.threads``).
 
     python scripts/bench_evaluate.py                      # 1,000 bandai2 clips, gaussian-58ms, 5 repeats
     python scripts/bench_evaluate.py --limit 100 --repeats 1
@@ -53,10 +55,13 @@ def run(args: list[str], checkout: str | None, data: Path) -> tuple[float, float
 
 
 def max_score_diff(a: Path, b: Path) -> float:
-    rows_a, rows_b = json.loads(a.read_text()), json.loads(b.read_text())
+    """Largest absolute score difference over the rows of ``a`` (each must be in ``b`` too)."""
     key = ("method", "file", "repeat")
-    if [[r[k] for k in key] for r in rows_a] != [[r[k] for k in key] for r in rows_b]:
-        raise SystemExit(f"{a} and {b} hold different rows")
+    rows_a = json.loads(a.read_text())
+    by_key = {tuple(r[k] for k in key): r for r in json.loads(b.read_text())}
+    if any(tuple(r[k] for k in key) not in by_key for r in rows_a):
+        raise SystemExit(f"{b} lacks rows of {a}")
+    rows_b = [by_key[tuple(r[k] for k in key)] for r in rows_a]
     x = np.array([[float(r[k]) for k in SCORES] for r in rows_a])
     y = np.array([[float(r[k]) for k in SCORES] for r in rows_b])
     if not np.array_equal(np.isnan(x), np.isnan(y)):
@@ -72,6 +77,7 @@ def main() -> None:
     parser.add_argument("--method", default="gaussian-58ms")
     parser.add_argument("--corruption", default="angular-0.5")
     parser.add_argument("--old", default="58b4b19", help="commit of the harness before")
+    parser.add_argument("--new", default="HEAD", help="commit of the harness after")
     parser.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "evaluate_speed")
     args = parser.parse_args()
     sys.path.insert(0, str(ROOT))
@@ -83,14 +89,19 @@ def main() -> None:
     common = ["evaluate", "--data", args.data, "--limit", str(args.limit), "--repeats", str(args.repeats)]
     common += ["--corruption", args.corruption, "--method", args.method, "--quiet"]
     with tempfile.TemporaryDirectory(prefix="bench_evaluate_") as tmp:
-        old = Path(tmp) / "old"
-        subprocess.run(["git", "worktree", "add", "--detach", str(old), args.old], cwd=ROOT, check=True)
+        old, new = Path(tmp) / "old", Path(tmp) / "new"
+        new_commit = subprocess.run(["git", "rev-parse", "--short", args.new], cwd=ROOT, capture_output=True,
+                                    text=True, check=True).stdout.strip()  # fmt: skip
+        for folder, commit in ((old, args.old), (new, new_commit)):
+            subprocess.run(["git", "worktree", "add", "--detach", str(folder), commit], cwd=ROOT, check=True)
         try:
             runs = {
                 f"before ({args.old}), 1 process": (["--csv", f"{tmp}/before.csv"], str(old)),
-                "after, 1 process (--workers 0)": (["--workers", "0", "--csv", f"{tmp}/serial.csv"], None),
-                f"after, Dask ({local_cores()} worker processes)": (["--csv", f"{tmp}/dask.csv"], None),
-            }
+                f"after ({new_commit}), 1 process (--workers 0)": (
+                    ["--workers", "0", "--csv", f"{tmp}/serial.csv"], str(new)),
+                f"after ({new_commit}), Dask ({local_cores()} worker processes)": (
+                    ["--csv", f"{tmp}/dask.csv"], str(new)),
+            }  # fmt: skip
             results = {}
             for name, (extra, path) in runs.items():
                 cpu, wall = run(common + extra, path, data_root())
@@ -100,26 +111,29 @@ def main() -> None:
                 "serial vs before": max_score_diff(Path(f"{tmp}/before.csv"), Path(f"{tmp}/serial.csv")),
                 "dask vs before": max_score_diff(Path(f"{tmp}/before.csv"), Path(f"{tmp}/dask.csv")),
             }
-            n_rows = len(json.loads(Path(f"{tmp}/dask.csv").read_text()))
+            methods = {k: sorted({r["method"] for r in json.loads(Path(f"{tmp}/{k}.csv").read_text())})
+                       for k in ("before", "dask")}  # fmt: skip
         finally:
-            subprocess.run(["git", "worktree", "remove", "--force", str(old)], cwd=ROOT, check=False)
+            for folder in (old, new):
+                subprocess.run(["git", "worktree", "remove", "--force", str(folder)], cwd=ROOT, check=False)
     base = next(iter(results.values()))["cpu_s"]
     command = "python scripts/bench_evaluate.py " + " ".join(sys.argv[1:])
-    record = {"command": command, "commit": git_commit(), "mocapnet_args": common, "rows": n_rows,
-              "runs": results, "max_abs_score_diff": diffs, "cores": local_cores()}  # fmt: skip
+    record = {"command": command, "commit": git_commit(), "new": new_commit, "mocapnet_args": common,
+              "methods": methods, "runs": results, "max_abs_score_diff": diffs, "cores": local_cores()}  # fmt: skip
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.with_suffix(".json").write_text(json.dumps(record, indent=1) + "\n")
     lines = [
         f"# `mocapnet evaluate` speed: {args.limit} {args.data} clips × {args.repeats} repeats, {args.method}",
         "",
-        f"`{command}` at commit {git_commit(short=True)}; {local_cores()} cores (shared machine); "
-        f"{n_rows} scored rows (the method plus the reference baselines).",
+        f"`{command}`; {local_cores()} cores (shared machine). Methods scored (the one asked for and the "
+        f"reference baselines the harness adds): before {', '.join(methods['before'])}; after "
+        f"{', '.join(methods['dask'])}.",
         "",
         "| run | CPU s | ÷ before | wall s |",
         "|---|---|---|---|",
     ]
     lines += [f"| {k} | {v['cpu_s']:.1f} | {v['cpu_s'] / base:.3f} | {v['wall_s']:.1f} |" for k, v in results.items()]
-    lines += ["", "Largest score difference to before (every row, angle/gap/rot/pos): "
+    lines += ["", "Largest score difference to before (every row both hold, angle/gap/rot/pos): "
               + ", ".join(f"{k} {v:.2e}" for k, v in diffs.items())]  # fmt: skip
     args.out.with_suffix(".md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
