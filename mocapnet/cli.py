@@ -66,8 +66,8 @@ def _evaluate(args: argparse.Namespace) -> int:
         args.limit,
         progress=not args.quiet,
         style=args.style,
-    )
         parallel=_parallel(args),
+    )
     where = f"fold {ev.fold} test clips" if ev.fold is not None else "all clips"
     n_files = len({r["file"] for r in ev.rows})
     print(f"{ev.data}: {ev.corruption}, {n_files} files ({where}), {ev.repeats} repeats")
@@ -206,6 +206,7 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--markdown", help="write the summary table as markdown")
     ev.add_argument("--plot", help="write a PNG of the error per motion")
     ev.add_argument("--quiet", action="store_true", help="no progress bar")
+    _add_parallel_args(ev)
     ev.set_defaults(func=_evaluate)
 
     cl = sub.add_parser(
@@ -233,7 +234,6 @@ def build_parser() -> argparse.ArgumentParser:
     )
     cl.add_argument("--report", help="write one row per file: .csv, or .json with each file's details")
     cl.add_argument("--force", action="store_true", help="folder: clean again files whose output is up to date")
-    _add_parallel_args(ev)
     cl.add_argument("--quiet", action="store_true", help="no progress bar")
     _add_parallel_args(cl)
     cl.set_defaults(func=_clean)
