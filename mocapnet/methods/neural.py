@@ -1,4 +1,11 @@
-"""The learned cleaners as angle-space methods: ``ebf``, ``ebd``, ``ebd+ebf``, and the ablations ``bf``, ``nn``.
+"""The learned cleaners as angle-space methods: ``ebf`` and its named variants, ``ebd``, ``ebd+ebf``, and the
+ablations ``bf``, ``nn``.
+
+EBF variants (issue 11): ``ebf-paper`` the paper's network (σ-only Gaussian filter per channel and frame, no
+bias); ``ebf-bias`` the same with a per-channel bias (residual) output; ``ebf-free`` a free-shape kernel
+(softmax over the 31 taps, with or without the bias output); ``ebf`` the best shipped variant for the clip's
+skeleton (``"ebf": true`` in ``mocapnet/checkpoints/index.json``; its recipe is in ``mocapnet methods``).
+A variant name given a checkpoint checks that the checkpoint is that variant; ``ebf=FILE`` takes any.
 
     --method ebf                       the checkpoint shipped for the clip's skeleton (mocapnet/checkpoints)
     --method ebf=run/best.ckpt         a trained checkpoint
@@ -13,6 +20,7 @@ Only the scored channels change. torch is imported when a method is built, never
 
 from __future__ import annotations
 
+import json
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
@@ -21,8 +29,22 @@ import numpy as np
 from mocapnet.methods.registry import MethodContext, register
 from mocapnet.motion import Motion
 
-_CLASS = {"ebf": "EBF", "bf": "EBF", "ebd": "EBD", "nn": "WindowMLP"}
+_EBF_VARIANTS = ("ebf-paper", "ebf-bias", "ebf-free")
 _HELP = "{what}; checkpoint: NAME=PATH, default: the shipped one for the skeleton; option mode=sequence|windowed"
+_INDEX = Path(__file__).resolve().parents[1] / "checkpoints" / "index.json"
+
+
+def _kind_of(model: object) -> str:
+    """The method a loaded network serves: an EBF variant, ``bf``, ``ebd`` or ``nn``."""
+    from mocapnet.nn.checkpoints import variant_of
+
+    name = type(model).__name__
+    return variant_of(dict(model.hparams)) if name == "EBF" else {"EBD": "ebd", "WindowMLP": "nn"}[name]
+
+
+def _accepts(method: str, kind: str) -> bool:
+    """Whether a network of ``kind`` may run as ``method`` (``ebf`` takes every EBF variant with an encoder)."""
+    return kind == method or (method == "ebf" and kind in _EBF_VARIANTS)
 
 
 def _resolver(method: str, path: str | None) -> Callable[[Motion], object]:
@@ -35,8 +57,9 @@ def _resolver(method: str, path: str | None) -> Callable[[Motion], object]:
         if not Path(path).is_file():
             raise FileNotFoundError(f"{method}: checkpoint {path} not found")
         model = load_model(path)
-        if type(model).__name__ != _CLASS[method]:
-            raise ValueError(f"{method}: {path} holds a {type(model).__name__} network, not {_CLASS[method]}")
+        kind = _kind_of(model)
+        if not _accepts(method, kind):
+            raise ValueError(f"{method}: {path} holds a {type(model).__name__} network ({kind}), not {method}")
 
         def given(motion: Motion) -> object:
             check_skeleton(model, motion.skeleton, f"checkpoint {path}", motion.fps)
@@ -54,6 +77,14 @@ def _resolver(method: str, path: str | None) -> Callable[[Motion], object]:
         return cache[key]
 
     return shipped
+
+
+def _shipped_ebf_recipes() -> str:
+    """What ``ebf`` runs, per corpus, from the shipped index (read as JSON; no torch)."""
+    if not _INDEX.exists():
+        return "none shipped"
+    entries = [e for e in json.loads(_INDEX.read_text())["checkpoints"] if e.get("ebf")]
+    return "; ".join(f"{e['corpus']}: {e['method']} ({e.get('recipe', '')}, {e.get('budget', '')})" for e in entries)
 
 
 def _paths(checkpoints: Sequence[str] | str) -> list[str]:
@@ -87,12 +118,17 @@ def _single(method: str):
     return factory
 
 
-register("ebf", "angles", help=_HELP.format(what="EBF: learned adaptive Gaussian filter per channel per frame"))(
-    _single("ebf")
-)
-register("ebd", "angles", help=_HELP.format(what="EBD: learned gap filling (missing samples only)"))(_single("ebd"))
-register("bf", "angles", help=_HELP.format(what="BF ablation: EBF without its encoder"))(_single("bf"))
-register("nn", "angles", help=_HELP.format(what="NN ablation: dense network over a 31-frame window"))(_single("nn"))
+_WHAT = {
+    "ebf": f"EBF, the best shipped variant for the skeleton: {_shipped_ebf_recipes()}",
+    "ebf-paper": "EBF as in the paper: learned sigma-only Gaussian filter per channel per frame, no bias",
+    "ebf-bias": "EBF with a per-channel bias (residual) output on top of the Gaussian filter",
+    "ebf-free": "EBF with a free-shape 31-tap kernel per channel per frame (with or without the bias output)",
+    "ebd": "EBD: learned gap filling (missing samples only; observed samples are never changed)",
+    "bf": "BF ablation: EBF without its encoder",
+    "nn": "NN ablation: dense network over a 31-frame window",
+}
+for _name, _what in _WHAT.items():
+    register(_name, "angles", help=_HELP.format(what=_what))(_single(_name))
 
 
 @register("ebd+ebf", "angles", help=_HELP.format(what="EBD fills gaps, then EBF denoises; checkpoints: EBD,EBF"))

@@ -1,6 +1,7 @@
 """Checkpoints shipped in the package (``mocapnet/checkpoints/``) and their index.
 
-``index.json`` lists, per file: the method it serves (``ebf``, ``ebd``, ``bf``, ``nn``), the corpus it was
+``index.json`` lists, per file: the method it serves (an EBF variant ``ebf-paper``/``ebf-bias``/``ebf-free``,
+``ebd``, ``bf``, ``nn``; ``"ebf": true`` marks the variant ``ebf`` runs for that skeleton), the corpus it was
 trained on, the skeleton topology hash it applies to (``features.topology_hash``), the skeleton's description,
 the frame rate, the validation score and the command that trained it. Shipped files are slimmed training
 checkpoints (weights, hyper-parameters, normaliser; no optimiser state), still loadable with
@@ -100,16 +101,36 @@ def read_checkpoint(path: str | PathLike) -> dict[str, Any]:
     return ckpt
 
 
+#: The EBF variants by name (issue 11): the paper's σ-only Gaussian filter; with a per-channel bias (residual)
+#: output; with a free-shape kernel (softmax over the taps, with or without the bias output).
+EBF_VARIANTS = ("ebf-paper", "ebf-bias", "ebf-free")
+
+
+def variant_of(hparams: dict[str, Any]) -> str:
+    """The method an EBF network's hyper-parameters make: ``bf`` (no encoder) or one of ``EBF_VARIANTS``."""
+    if not hparams.get("encoder_layers", 4):
+        return "bf"
+    if hparams.get("filter_shape", "gaussian") == "free":
+        return "ebf-free"
+    return "ebf-bias" if hparams.get("bias") else "ebf-paper"
+
+
 def method_of(checkpoint: dict[str, Any]) -> str:
-    """The method name a checkpoint serves: ``ebf``, ``bf`` (EBF without encoder), ``ebd`` or ``nn``."""
+    """The method name a checkpoint serves: an EBF variant (``EBF_VARIANTS``), ``bf``, ``ebd`` or ``nn``."""
     kind = checkpoint["mocapnet_model"]
     if kind == "EBF":
-        return "ebf" if checkpoint["hyper_parameters"]["encoder_layers"] else "bf"
+        return variant_of(checkpoint["hyper_parameters"])
     return {"EBD": "ebd", "WindowMLP": "nn"}[kind]
 
 
 def read_index() -> list[dict[str, Any]]:
     return json.loads(INDEX.read_text())["checkpoints"] if INDEX.exists() else []
+
+
+def serves(entry: dict[str, Any], method: str) -> bool:
+    """Whether index ``entry`` is the shipped checkpoint of ``method``: its own method name, or ``ebf`` for
+    the EBF variant marked ``"ebf": true`` (the best shipped variant for its skeleton)."""
+    return entry["method"] == method or (method == "ebf" and bool(entry.get("ebf")))
 
 
 def shipped_checkpoint(method: str, skeleton: Skeleton) -> Path:
@@ -118,13 +139,13 @@ def shipped_checkpoint(method: str, skeleton: Skeleton) -> Path:
     mine = topology_hash(skeleton)
     entries = read_index()
     for entry in entries:
-        if entry["method"] == method and entry["skeleton_hash"] == mine:
+        if serves(entry, method) and entry["skeleton_hash"] == mine:
             return CHECKPOINT_DIR / entry["file"]
-    same = [e for e in entries if e["method"] == method]
+    same = [e for e in entries if serves(e, method)]
     shipped = sorted({f"{e['corpus']}: {e['skeleton']} ({e['skeleton_hash']})" for e in same})
     raise LookupError(
         f"no shipped {method!r} checkpoint for this skeleton, {skeleton.describe()} ({mine}); shipped "
-        f"{method!r} checkpoints are for: {'; '.join(shipped) or 'none'}. Train one (scripts/train.py) and pass "
+        f"{method!r} checkpoints are for: {'; '.join(shipped) or 'none'}. Train one (mocapnet train) and pass "
         f"--method {method}=path.ckpt"
     )
 
@@ -136,10 +157,11 @@ def export(
     metrics: dict[str, float] | None = None,
     recipe: str = "",
     budget: str = "",
+    as_ebf: bool = False,
 ) -> Path:
     """Slim ``src`` into ``mocapnet/checkpoints/<name>.ckpt`` and record it in ``index.json`` (replacing an
     entry of the same file name) with its SHA-256, ``recipe`` (how it was trained, in words) and ``budget``
-    (wall-clock training time)."""
+    (wall-clock training time). ``as_ebf``: this EBF variant becomes what ``ebf`` runs for its skeleton."""
     from mocapnet.corpus import load_corpus
 
     ckpt = read_checkpoint(src)
@@ -174,7 +196,15 @@ def export(
         "command": command,
         **(metrics or {}),
     }
-    entries = [e for e in read_index() if e["file"] != dst.name] + [entry]
+    if as_ebf:
+        if entry["method"] not in EBF_VARIANTS:
+            raise ValueError(f"{src}: a {entry['method']} checkpoint cannot serve 'ebf'")
+        entry["ebf"] = True
+    others = [e for e in read_index() if e["file"] != dst.name]
+    for e in others:
+        if as_ebf and e["skeleton_hash"] == entry["skeleton_hash"]:
+            e.pop("ebf", None)
+    entries = others + [entry]
     INDEX.write_text(json.dumps({"checkpoints": sorted(entries, key=lambda e: e["file"])}, indent=1) + "\n")
     return dst
 
@@ -186,8 +216,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--command", default="", help="the training command, recorded in index.json")
     parser.add_argument("--recipe", default="", help="how it was trained, in words, recorded in index.json")
     parser.add_argument("--budget", default="", help="wall-clock training budget, e.g. '70 min on 1 CPU thread'")
+    parser.add_argument("--ebf", action="store_true", help="make this EBF variant the one `ebf` runs")
     args = parser.parse_args(argv)
-    print(export(args.checkpoint, args.name, args.command, recipe=args.recipe, budget=args.budget))
+    print(export(args.checkpoint, args.name, args.command, recipe=args.recipe, budget=args.budget, as_ebf=args.ebf))
 
 
 if __name__ == "__main__":

@@ -11,7 +11,7 @@ import pytest
 from mocapnet.corrupt import corrupt_motion
 from mocapnet.methods.registry import build_method
 from mocapnet.motion import Motion
-from mocapnet.nn.checkpoints import shipped_checkpoint
+from mocapnet.nn.checkpoints import read_index, shipped_checkpoint
 
 
 def save(model, path) -> str:
@@ -70,3 +70,65 @@ def test_other_skeleton_is_refused_naming_both(clip, tiny, tmp_path):
         clean(other, np.zeros(other.channels.shape, dtype=bool))
     with pytest.raises(LookupError, match="no shipped 'ebf' checkpoint for this skeleton, 31 joints"):
         shipped_checkpoint("ebf", other.skeleton)
+
+
+NEURAL_METHODS = {"ebf", "ebf-paper", "ebf-bias", "ebf-free", "ebd", "ebd+ebf", "bf", "nn"}
+
+
+def test_method_names_are_pinned():
+    import mocapnet.methods.neural  # noqa: F401  (registers the names)
+    from mocapnet.methods.registry import available
+
+    names = {spec.name for spec in available()}
+    assert NEURAL_METHODS <= names
+    help_of = {spec.name: spec.help for spec in available()}
+    assert "no bias" in help_of["ebf-paper"] and "free-shape" in help_of["ebf-free"]
+    for entry in read_index():
+        if entry.get("ebf"):
+            assert f"{entry['corpus']}: {entry['method']} ({entry['recipe']}" in help_of["ebf"]
+
+
+@pytest.mark.parametrize(
+    "kind, accepted",
+    [
+        ("ebf", {"ebf", "ebf-paper"}),
+        ("ebf-bias", {"ebf", "ebf-bias"}),
+        ("ebf-free", {"ebf", "ebf-free"}),
+        ("bf", {"bf"}),
+        ("ebd", {"ebd"}),
+    ],
+)
+def test_variant_names_check_the_checkpoint(kind, accepted, clip, tiny, tmp_path):
+    path = save(tiny(kind, clip), tmp_path / f"{kind}.ckpt")
+    for method in ("ebf", "ebf-paper", "ebf-bias", "ebf-free", "bf", "ebd"):
+        if method in accepted:
+            build_method(f"{method}={path}")
+        else:
+            with pytest.raises(ValueError, match=f"not {method}$"):
+                build_method(f"{method}={path}")
+
+
+def test_shipped_variants_and_best_ebf(sample):
+    entries = read_index()
+    for entry in entries:
+        assert entry["method"] in NEURAL_METHODS - {"ebf", "ebd+ebf"}
+    per_skeleton = {}
+    for entry in entries:
+        if entry.get("ebf"):
+            assert entry["method"] in ("ebf-paper", "ebf-bias", "ebf-free")
+            per_skeleton[entry["skeleton_hash"]] = per_skeleton.get(entry["skeleton_hash"], 0) + 1
+    assert per_skeleton and set(per_skeleton.values()) == {1}
+    best = shipped_checkpoint("ebf", sample.skeleton)
+    entry = next(e for e in entries if e["file"] == best.name)
+    assert shipped_checkpoint(entry["method"], sample.skeleton) == best
+
+
+def test_ebd_never_changes_observed_samples(clip, sample, tiny, tmp_path):
+    longer = clip.with_channels(sample.channels[:600])
+    path = save(tiny("ebd", clip), tmp_path / "ebd.ckpt")
+    for corruption in ("noise+gaps", "gaps", "segment-gap:left-arm:0.5"):
+        noisy, mask = corrupt_motion(longer, corruption, np.random.default_rng(3))
+        for text in (f"ebd={path}", f"ebd={path}:mode=windowed", "ebd"):
+            out = build_method(text).clean(longer.with_channels(noisy), mask)
+            np.testing.assert_array_equal(out[~mask], noisy[~mask])
+            assert np.isfinite(out).all()
