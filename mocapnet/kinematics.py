@@ -41,7 +41,13 @@ def euler_to_matrix(angles_deg: np.ndarray, seq: str) -> np.ndarray:
     cos, sin = np.cos(rad), np.sin(rad)
     out = _axis_matrices(seq[0], cos[..., 0], sin[..., 0])
     for n, axis in enumerate(seq[1:], start=1):
-        out = out @ _axis_matrices(axis, cos[..., n], sin[..., n])
+        # out @ R_axis changes only the two columns j, k of the rotation plane (4 products, no matmul).
+        i = "XYZ".index(axis.upper())
+        j, k = (i + 1) % 3, (i + 2) % 3
+        c, s = cos[..., n, None], sin[..., n, None]
+        col_j, col_k = out[..., :, j].copy(), out[..., :, k]
+        out[..., :, j] = col_j * c + col_k * s
+        out[..., :, k] = col_k * c - col_j * s
     return out
 
 
@@ -68,19 +74,18 @@ def global_transforms(
     skeleton: Skeleton, channels: np.ndarray, rot_l: np.ndarray | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
     """Global rotations ``[T, J, 3, 3]`` and positions ``[T, J, 3]`` (skeleton units); ``rot_l`` may pass
-    ``local_rotations(skeleton, channels)`` when it is already known. Joints of one depth are done at once."""
+    ``local_rotations(skeleton, channels)`` when it is already known."""
     rot_l = local_rotations(skeleton, channels) if rot_l is None else rot_l
     trans_l = local_translations(skeleton, channels)
     rot_g = np.empty_like(rot_l)
     pos_g = np.empty_like(trans_l)
-    for level, joints in enumerate(skeleton.depth_levels):
-        if level == 0:
-            rot_g[:, joints] = rot_l[:, joints]
-            pos_g[:, joints] = trans_l[:, joints]
-            continue
-        parents = np.asarray(skeleton.parents)[joints]
-        rot_g[:, joints] = rot_g[:, parents] @ rot_l[:, joints]
-        pos_g[:, joints] = pos_g[:, parents] + np.einsum("tjab,tjb->tja", rot_g[:, parents], trans_l[:, joints])
+    for j, p in enumerate(skeleton.parents):
+        if p < 0:
+            rot_g[:, j] = rot_l[:, j]
+            pos_g[:, j] = trans_l[:, j]
+        else:
+            rot_g[:, j] = rot_g[:, p] @ rot_l[:, j]
+            pos_g[:, j] = pos_g[:, p] + np.einsum("tab,tb->ta", rot_g[:, p], trans_l[:, j])
     return rot_g, pos_g
 
 

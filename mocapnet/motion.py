@@ -128,14 +128,6 @@ class Skeleton:
         return tuple(np.array([f[i] for f in found], dtype=int) for i in range(3))  # type: ignore[return-value]
 
     @cached_property
-    def depth_levels(self) -> tuple[np.ndarray, ...]:
-        """Joint indices by depth in the hierarchy (roots first); a level's parents are all in earlier ones."""
-        depth: list[int] = []
-        for p in self.parents:
-            depth.append(0 if p < 0 else depth[p] + 1)
-        return tuple(np.flatnonzero(np.array(depth) == d) for d in range(max(depth, default=-1) + 1))
-
-    @cached_property
     def scored_joints(self) -> np.ndarray:
         """Indices of joints that have at least one scored channel."""
         return np.array([j for j in range(self.n_joints) if self.scored_mask[self.joint_channels(j)].any()], dtype=int)
