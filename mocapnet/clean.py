@@ -167,6 +167,7 @@ def clean_c3d_file(src: Path, out: Path, options: CleanOptions) -> CleanResult:
         f"{src} -> {out}: {method} filled {n_filled} of {n_missing} missing samples in {usable.size} markers"
         + (f" (read with {reader})" if (reader := getattr(markers, "reader", "ezc3d")) != "ezc3d" else "")
         + (f"; {left} gaps wholly or partly left missing (no plausible fill)" if left else "")
+        + (f"; knn database: {built.clean.database}" if name == "knn" else "")
         + (f"; {empty} markers with no data at all left empty" if empty else ""),
         {"gaps": gaps},
     )  # fmt: skip

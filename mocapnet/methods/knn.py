@@ -839,11 +839,11 @@ def _knn(
     def clean(noisy: Markers) -> np.ndarray:
         if fixed is None or own:
             take = replace(noisy, name=f"{noisy.name}, own frames")  # not left out as the clip being cleaned
-            source = f"{fixed.source} + the take's own frames" if fixed else f"{noisy.name or 'the take'} itself"
+            source = f"{fixed.source} + the take's own frames" if fixed else f"{noisy.name or 'the take'}'s own frames"
             db = MotionDatabase.from_markers(clips + [take], levels, up=up, source=source)
         else:
             db = fixed
-        clean.database = db.describe() + ("" if fixed else " (its own complete frames)")  # type: ignore[attr-defined]
+        clean.database = db.describe()  # type: ignore[attr-defined]
         filled, report = fill_gaps(
             noisy,
             db,
