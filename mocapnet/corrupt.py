@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mocapnet.kinematics import inverse_kinematics, joint_positions
+from mocapnet.kinematics import inverse_kinematics, joint_positions, motion_points
 from mocapnet.motion import Markers, Motion
 from mocapnet.segments import SEGMENTS, marker_segment, skeleton_segment
 
@@ -400,6 +400,6 @@ def corrupt_markers(markers: Markers, corruption: str | Corruption, rng: np.rand
 
 
 def motion_markers(motion: Motion, channels: np.ndarray | None = None) -> Markers:
-    """Joint positions of a motion as ``Markers`` (one point per joint, labelled by joint name, cm)."""
-    pos = joint_positions(motion, channels)
-    return Markers(pos, np.ones(pos.shape[:2], dtype=bool), motion.skeleton.names, motion.fps, motion.name)
+    """Joint positions of a motion as ``Markers`` (one point per joint, labelled by joint name, cm):
+    ``kinematics.motion_points`` without End Sites."""
+    return motion_points(motion, channels, end_sites=False)

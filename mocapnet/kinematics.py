@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from mocapnet.motion import Motion, Skeleton
+from mocapnet.motion import Markers, Motion, Skeleton
 
 
 def rotation_sequence(skeleton: Skeleton, joint: int) -> tuple[str, np.ndarray]:
@@ -104,6 +104,26 @@ def joint_positions(motion: Motion, channels: np.ndarray | None = None, end_site
     if end_sites:
         pos_g = np.concatenate([pos_g, end_site_positions(motion.skeleton, rot_g, pos_g)], axis=1)
     return pos_g * motion.skeleton.cm_per_unit
+
+
+def point_labels(skeleton: Skeleton, end_sites: bool = True) -> list[str]:
+    """Labels of the points of ``joint_positions``: joint names, then ``<parent>_end<e>`` per End Site."""
+    ends = [f"{skeleton.names[p]}_end{e}" for e, p in enumerate(skeleton.end_parents)] if end_sites else []
+    return list(skeleton.names) + ends
+
+
+def motion_points(
+    motion: Motion,
+    channels: np.ndarray | None = None,
+    end_sites: bool = True,
+    visible: np.ndarray | None = None,
+) -> Markers:
+    """The motion as ``Markers``: joint (and End Site) positions ``[T, P, 3]`` in cm by forward kinematics
+    of ``channels`` (default the motion's), labelled by ``point_labels``; ``visible [T, P]`` default all.
+    The one motion → points conversion (point methods on BVH data, kNN databases, spatial noise)."""
+    pos = joint_positions(motion, channels, end_sites=end_sites)
+    seen = np.ones(pos.shape[:2], dtype=bool) if visible is None else visible
+    return Markers(pos, seen, point_labels(motion.skeleton, end_sites), motion.fps, motion.name)
 
 
 def rest_positions(skeleton: Skeleton) -> np.ndarray:

@@ -21,7 +21,7 @@ from mocapnet.evaluate import metrics
 from mocapnet.fill import lerp_fill
 from mocapnet.io.atomic import MocapFileError
 from mocapnet.io.c3d import read_c3d
-from mocapnet.kinematics import global_transforms, inverse_kinematics, joint_positions, local_rotations
+from mocapnet.kinematics import global_transforms, inverse_kinematics, local_rotations, motion_points
 from mocapnet.methods.registry import Method, MethodContext, MethodSpec, build_method, spaces_of
 from mocapnet.motion import Markers, Motion
 
@@ -104,11 +104,6 @@ def _row(
     return row
 
 
-def _point_labels(skeleton) -> list[str]:
-    """Labels of the joint and End Site points of ``joint_positions(..., end_sites=True)``."""
-    return list(skeleton.names) + [f"{skeleton.names[p]}_end{e}" for e, p in enumerate(skeleton.end_parents)]
-
-
 def is_c3d_data(data: str | Path) -> bool:
     p = Path(str(data))
     if p.is_file():
@@ -126,7 +121,6 @@ def _points_method_as_angles(method: Method):
         sk = noisy.skeleton
         filled = lerp_fill(noisy.channels, mask)
         base = noisy.with_channels(filled)
-        pos = joint_positions(base, end_sites=True)
         joint_missing = np.stack([mask[:, sk.joint_channels(j)].any(axis=1) for j in range(sk.n_joints)], axis=1)
         # A joint's position depends on its ancestors' rotations: it is missing if any ancestor is.
         pos_missing = joint_missing.copy()
@@ -135,22 +129,13 @@ def _points_method_as_angles(method: Method):
                 pos_missing[:, j] |= pos_missing[:, p] | joint_missing[:, p]
         ends_missing = np.stack([pos_missing[:, p] | joint_missing[:, p] for p in sk.end_parents], axis=1)
         visible = ~np.concatenate([pos_missing, ends_missing], axis=1)
-        markers = Markers(pos, visible, _point_labels(sk), noisy.fps, noisy.name)
-        target = method.clean(markers)
+        target = method.clean(motion_points(base, visible=visible))
         out = inverse_kinematics(base, target)
         result = noisy.channels.copy()
         result[mask] = out[mask]
         return result
 
     return clean
-
-
-def _motion_train_as_markers(train: Sequence[Motion]) -> list[Markers]:
-    out = []
-    for m in train:
-        pos = joint_positions(m, end_sites=True)
-        out.append(Markers(pos, np.ones(pos.shape[:2], dtype=bool), _point_labels(m.skeleton), m.fps, m.name))
-    return out
 
 
 def _scored_chunks(
@@ -246,7 +231,7 @@ def evaluate_angles(
             built.append((str(spec), build_method(spec, context).clean))
             continue
         if point_context is None:
-            point_context = MethodContext(_motion_train_as_markers(train), corpus.name, corruption.text)
+            point_context = MethodContext([motion_points(m) for m in train], corpus.name, corruption.text)
         built.append((str(spec), _points_method_as_angles(build_method(spec, point_context))))
     shared = (built, corpus.name, corruption, repeats)
     return _scored_chunks(score_motions, clips, shared, parallel, progress, corruption)
