@@ -58,12 +58,17 @@ class TruncatedC3DWarning(UserWarning):
     """A C3D file's data block holds fewer frames than its header says; the frames present were read."""
 
 
+class C3DRebuiltWarning(UserWarning):
+    """A C3D file could not be edited in place; the output is a new file with its points and analogs."""
+
+
 @dataclass(frozen=True)
 class C3DContent:
     """Every point of one C3D file as read, before markers are picked.
 
     ``xyz [T, P, 3]`` in the file's units (``units``), ``residuals [T, P]`` (negative = invalid), ``labels``
-    of all ``P`` points in file order, ``rate`` in Hz, ``reader`` one of ``READERS``.
+    of all ``P`` points in file order, ``rate`` in Hz, ``analogs [C, N]`` (``N`` = T × samples per frame,
+    offset and scale applied), ``reader`` one of ``READERS``.
     """
 
     path: Path
@@ -74,6 +79,7 @@ class C3DContent:
     residuals: np.ndarray
     rate: float
     units: str
+    analogs: np.ndarray
 
     @property
     def n_frames(self) -> int:
@@ -102,37 +108,41 @@ class C3DContent:
         )
 
 
-def _point_labels(layout: C3DLayout, n_points: int) -> tuple[str, ...]:
-    """``POINT:LABELS`` then ``LABELS2``, ``LABELS3``, … (files with over 255 points), padded to ``n_points``."""
-    labels = list(layout.strings("POINT", "LABELS"))
+def _point_labels(layout: C3DLayout, n_points: int, group: str = "POINT") -> tuple[str, ...]:
+    """``LABELS`` then ``LABELS2``, ``LABELS3``, … (over 255 entries) of ``group``, padded to ``n_points``."""
+    labels = list(layout.strings(group, "LABELS"))
     k = 2
-    while ("POINT", f"LABELS{k}") in layout.parameters:
-        labels += layout.strings("POINT", f"LABELS{k}")
+    while (group, f"LABELS{k}") in layout.parameters:
+        labels += layout.strings(group, f"LABELS{k}")
         k += 1
-    labels += [f"point{i}" for i in range(len(labels), n_points)]
+    labels += [f"{group.lower()}{i}" for i in range(len(labels), n_points)]
     return tuple(labels[:n_points])
 
 
-def _read_ezc3d(path: Path) -> tuple[np.ndarray, np.ndarray]:
+def _read_ezc3d(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``xyz [T, P, 3]``, ``residuals [T, P]`` and ``analogs [C, N]`` (offset and scale applied)."""
     import ezc3d
 
     # Never ignore_bad_formatting: on some broken files it crashes the whole process (segfault).
     c3d = ezc3d.c3d(str(path), extract_forceplat_data=False)
     points = np.asarray(c3d["data"]["points"], dtype=np.float64)  # [4, P, T]
     residuals = np.asarray(c3d["data"]["meta_points"]["residuals"], dtype=np.float64)  # [1, P, T]
-    return points[:3].transpose(2, 1, 0), residuals[0].T
+    analogs = np.asarray(c3d["data"]["analogs"], dtype=np.float64)  # [1, C, N]
+    return points[:3].transpose(2, 1, 0), residuals[0].T, analogs.reshape(analogs.shape[-2:])
 
 
-def _read_c3d_package(path: Path) -> tuple[np.ndarray, np.ndarray]:
+def _read_c3d_package(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """As ``_read_ezc3d``, through the PyPI ``c3d`` package."""
     import c3d
 
     with warnings.catch_warnings(), open(path, "rb") as fh:
         warnings.simplefilter("ignore")
-        frames = [points[:, :4] for _, points, _ in c3d.Reader(fh).read_frames()]
+        frames = [(points[:, :4], analog) for _, points, analog in c3d.Reader(fh).read_frames()]
     if not frames:
-        return np.zeros((0, 0, 3)), np.zeros((0, 0))
-    data = np.stack(frames).astype(np.float64)  # [T, P, 4]: x, y, z, residual (-1 = invalid)
-    return data[..., :3], data[..., 3]
+        return np.zeros((0, 0, 3)), np.zeros((0, 0)), np.zeros((0, 0))
+    data = np.stack([p for p, _ in frames]).astype(np.float64)  # [T, P, 4]: x, y, z, residual (-1 = invalid)
+    analogs = np.concatenate([a for _, a in frames], axis=1).astype(np.float64)  # [C, N]
+    return data[..., :3], data[..., 3], analogs
 
 
 def _one_line(exc: BaseException) -> str:
@@ -156,11 +166,11 @@ def load_c3d(path: str | os.PathLike, *, allow_truncated: bool = False) -> C3DCo
             raise MocapFileError(msg + ("" if allow_truncated else " (--allow-truncated reads the frames present)"))
         warnings.warn(msg + "; reading those", TruncatedC3DWarning, stacklevel=2)
     try:
-        xyz, residuals = _read_ezc3d(path)
+        xyz, residuals, analogs = _read_ezc3d(path)
         reader = "ezc3d"
     except Exception as exc:  # ezc3d raises RuntimeError, OSError, ValueError, IndexError, …
         try:
-            xyz, residuals = _read_c3d_package(path)
+            xyz, residuals, analogs = _read_c3d_package(path)
             reader = "c3d"
         except Exception as exc2:  # a third-party parser: anything it raises means it cannot read the file
             raise MocapFileError(
@@ -169,9 +179,11 @@ def load_c3d(path: str | os.PathLike, *, allow_truncated: bool = False) -> C3DCo
     present = min(xyz.shape[0], layout.frames_present)
     rate = layout.number("POINT", "RATE") or layout.header_rate
     units = (layout.strings("POINT", "UNITS") or ["mm"])[0].strip().lower() or "mm"
+    per_frame = analogs.shape[1] // max(xyz.shape[0], 1)
     return C3DContent(
-        path, reader, layout, _point_labels(layout, xyz.shape[1]), xyz[:present], residuals[:present], rate, units
-    )
+        path, reader, layout, _point_labels(layout, xyz.shape[1]), xyz[:present], residuals[:present], rate, units,
+        analogs[:, : present * per_frame],
+    )  # fmt: skip
 
 
 def read_c3d(path: str | os.PathLike, markers_only: bool = True, *, allow_truncated: bool = False) -> C3DMarkers:
@@ -271,33 +283,80 @@ def _write_edited(path: Path, markers: Markers, inputs: tuple, source: Path, fil
     layout = content.layout
     stored, _ = decode_points(layout, raw)
     measured = content.visible
-    if stored.shape != content.xyz.shape or not np.allclose(stored[measured], content.xyz[measured], rtol=1e-6):
-        raise MocapFileError(
-            f"{source}: cannot edit this file in place: its data block does not decode to what {content.reader} read"
-        )
     values = markers.points / _UNIT_TO_CM[content.units]
+    if stored.shape != content.xyz.shape or not np.allclose(stored[measured], content.xyz[measured], rtol=1e-6):
+        warnings.warn(
+            f"{source}: cannot edit this file in place (its data block does not decode to what {content.reader} "
+            f"read); {path} is a new C3D file with its points, analog channels, labels and rates only",
+            C3DRebuiltWarning,
+            stacklevel=3,
+        )
+        _write_rebuilt(path, content, values, filled, index, (*inputs, source))
+        return
     edited = cut_to_present(layout, patch_points(layout, raw, values, filled, index, markers.labels))
     with atomic_output(path, (*inputs, source)) as tmp:
         tmp.write_bytes(edited)
 
 
-def _write_new(path: Path, markers: Markers, inputs: tuple) -> None:
+def _write_rebuilt(
+    path: Path, content: C3DContent, values: np.ndarray, filled: np.ndarray, index: np.ndarray, inputs: tuple
+) -> None:
+    """A new C3D file holding every point of ``content`` (``filled`` samples replaced by ``values [T, M, 3]``
+    in the file's units, residual 0), its analog channels, labels and rates."""
+    xyz, residuals = content.xyz.copy(), content.residuals.copy()
+    t, m = np.nonzero(filled)
+    xyz[t, index[m]] = values[t, m]
+    residuals[t, index[m]] = 0.0
+    invalid = residuals < 0
+    xyz[invalid] = np.nan
+    analogs = content.analogs
+    analog_rate = content.layout.number("ANALOG", "RATE") or 0.0
+    analog = {}
+    if analogs.shape[0] and analog_rate > 0:
+        labels = _point_labels(content.layout, analogs.shape[0], "ANALOG")
+        analog = {"rate": analog_rate, "labels": labels, "data": analogs}
+    residuals[invalid] = -1.0
+    _write_ezc3d(path, xyz, residuals, content.labels, content.rate, content.units, inputs, analog)
+
+
+def _write_ezc3d(
+    path: Path,
+    xyz: np.ndarray,
+    residuals: np.ndarray | None,
+    labels: tuple[str, ...],
+    rate: float,
+    units: str,
+    inputs: tuple,
+    analog: dict | None = None,
+) -> None:
+    """Write a new C3D file through ezc3d: ``xyz [T, P, 3]`` in ``units`` (NaN = missing), ``residuals
+    [T, P]`` (None: ezc3d's default), ``analog`` optional ``{"rate", "labels", "data" [C, N]}``."""
     import ezc3d
 
     c3d = ezc3d.c3d()
-    c3d["parameters"]["POINT"]["RATE"]["value"] = [float(markers.fps)]
-    c3d["parameters"]["POINT"]["LABELS"]["value"] = list(markers.labels)
-    c3d.add_parameter("POINT", "UNITS", ["mm"])
-    pts = np.ones((4, markers.n_markers, markers.n_frames))
-    pts[:3] = (markers.points * 10.0).transpose(2, 1, 0)
-    pts[:3][:, ~markers.visible.T] = np.nan
+    c3d["parameters"]["POINT"]["RATE"]["value"] = [float(rate)]
+    c3d["parameters"]["POINT"]["LABELS"]["value"] = list(labels)
+    c3d.add_parameter("POINT", "UNITS", [units])
+    pts = np.ones((4, xyz.shape[1], xyz.shape[0]))
+    pts[:3] = xyz.transpose(2, 1, 0)
     c3d["data"]["points"] = pts
+    if residuals is not None:
+        c3d["data"]["meta_points"] = {"residuals": residuals.T[None].astype(np.float64)}
+    if analog:
+        c3d["parameters"]["ANALOG"]["RATE"]["value"] = [float(analog["rate"])]
+        c3d["parameters"]["ANALOG"]["LABELS"]["value"] = list(analog["labels"])
+        c3d["data"]["analogs"] = np.asarray(analog["data"], dtype=np.float64)[None]
     # ezc3d appends ".c3d" to any other name, so it writes in a private folder; the bytes then go through
     # the hidden .partial file beside the output.
     with tempfile.TemporaryDirectory(prefix="mocapnet-c3d-") as folder, atomic_output(path, inputs) as tmp:
         staged = Path(folder) / "out.c3d"
         c3d.write(str(staged))
         tmp.write_bytes(staged.read_bytes())
+
+
+def _write_new(path: Path, markers: Markers, inputs: tuple) -> None:
+    xyz = np.where(markers.visible[..., None], markers.points * 10.0, np.nan)
+    _write_ezc3d(path, xyz, None, markers.labels, markers.fps, "mm", inputs)
 
 
 def write_c3d(
@@ -323,7 +382,9 @@ def write_c3d(
         ``markers`` columns are matched to the file's points by label (the k-th marker called L is the
         file's k-th point called L), so ``markers`` may be any subset of the points, in any order. In an
         integer C3D file (``POINT:SCALE`` > 0) filled positions are rounded to the scale. A truncated source
-        gives a consistent file with its complete frames.
+        gives a consistent file with its complete frames. Should the file's data block not decode to what the
+        reader read (a layout this module does not know), a ``C3DRebuiltWarning`` says so and the output is
+        a new C3D file with every point, the analog channels, labels and rates (other groups are lost).
     filled : bool ``[T, M]``, the samples to write; default: visible in ``markers`` but missing in
         ``source``. Each must have a value in ``markers``.
 

@@ -207,3 +207,31 @@ def test_truncated_source_gives_a_consistent_file(shared, tmp_path):
         back = read_c3d(out)  # no longer truncated: the header says the frames it holds
     assert back.n_frames == markers.n_frames == read_layout(out).frames
     np.testing.assert_array_equal(back.points[markers.visible], markers.points[markers.visible])
+
+
+@pytest.mark.parametrize("rel", ["btkdata/Gait.c3d", "btkdata/sgi_real.c3d"])
+def test_unknown_layout_gives_a_new_file_with_points_and_analogs(shared, tmp_path, monkeypatch, rel):
+    """When the data block does not decode to what the reader read, the output is rebuilt through ezc3d."""
+    import mocapnet.io.c3d as c3d_module
+
+    src = shared / "c3d" / rel
+    markers = read_c3d(src)
+    full = interpolated(markers)
+    filled = full.visible & ~markers.visible
+    real = c3d_module.decode_points
+    monkeypatch.setattr(c3d_module, "decode_points", lambda layout, raw: (real(layout, raw)[0] + 1.0, None))
+    out = tmp_path / "rebuilt.c3d"
+    with pytest.warns(c3d_module.C3DRebuiltWarning, match="cannot edit this file in place"):
+        write_c3d(out, full, source=src)
+    before, after = load_c3d(src), load_c3d(out)
+    assert after.reader == "ezc3d" and after.labels == before.labels and after.rate == pytest.approx(before.rate)
+    assert after.units == before.units
+    np.testing.assert_allclose(after.analogs, before.analogs, rtol=1e-6, atol=1e-6)
+    measured = before.visible
+    np.testing.assert_allclose(after.xyz[measured], before.xyz[measured], rtol=1e-6, atol=1e-4)
+    back = read_c3d(out)
+    np.testing.assert_array_equal(back.visible, full.visible)
+    np.testing.assert_allclose(back.points[filled], full.points[filled], atol=1e-4)
+    unique = [m for m, lab in enumerate(markers.labels) if after.labels.count(lab) == 1]
+    cols = [after.labels.index(markers.labels[m]) for m in unique]
+    assert (after.residuals[:, cols][filled[:, unique]] == 0).all()
