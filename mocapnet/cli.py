@@ -89,8 +89,9 @@ def _evaluate(args: argparse.Namespace) -> int:
 
 def _parallel(args: argparse.Namespace):
     from mocapnet.parallel import Parallel
+    from mocapnet.threads import default_threads
 
-    return Parallel(scheduler=args.scheduler, workers=args.workers, threads=args.threads)
+    return Parallel(scheduler=args.scheduler, workers=args.workers, threads=args.threads or default_threads())
 
 
 def _clean(args: argparse.Namespace) -> int:

@@ -45,7 +45,8 @@ def local_cores() -> int:
 class Parallel:
     """Where tasks run: an existing Dask cluster at ``scheduler`` (``tcp://HOST:PORT``), else a local cluster
     of ``workers`` processes (``None`` = one per core; ``0`` = in this process, no Dask). ``threads``: torch
-    and BLAS threads per worker process (``None`` = ``mocapnet.threads.default_threads()``, i.e. 1)."""
+    and BLAS threads per worker process (``None`` = ``mocapnet.threads.default_threads()``, i.e. 1); when tasks
+    run in this process its threads are pinned only if ``threads`` is given."""
 
     scheduler: str | None = None
     workers: int | None = None
@@ -130,7 +131,8 @@ def imap_tasks(
     bar = tqdm(total=sum(sizes), desc=desc, unit=unit, disable=not progress)
     try:
         if parallel.in_process or (len(items) <= 1 and not parallel.scheduler):
-            pin_threads(parallel.threads)
+            if parallel.threads is not None:  # this process: pinned only when asked (a library call)
+                pin_threads(parallel.threads)
             for i, item in enumerate(items):
                 yield i, fn(item, *shared)
                 bar.update(sizes[i])

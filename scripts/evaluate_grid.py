@@ -3,6 +3,7 @@
     python scripts/evaluate_grid.py                         # mocapnet/conf/grid/sample.yaml
     python scripts/evaluate_grid.py grid=bandai2_noise fold=0
     python scripts/evaluate_grid.py corpora=[sample] corruptions=[gaps] methods=[lerp,spline] repeats=2
+    python scripts/evaluate_grid.py grid=bandai2_gaps workers=0          # in this process, no Dask
 
 For each (corpus, corruption) the report holds the summary table (ratios as in PROTOCOL.md) and a plot of
 the error per motion (like the EBF paper's Figures 5 and 9); it also writes one CSV of every row.
@@ -25,8 +26,10 @@ def main(cfg: DictConfig) -> None:
     from mocapnet.evaluate.benchmark import git_commit
     from mocapnet.evaluate.harness import evaluate, is_c3d_data
     from mocapnet.evaluate.report import plot_per_motion, table, write_csv
+    from mocapnet.parallel import Parallel
 
     grid = cfg.get("grid", cfg)
+    parallel = Parallel(cfg.get("scheduler"), cfg.get("workers"), cfg.get("threads", 1))
     corpora = list(cfg.get("corpora") or grid.corpora)
     corruptions = list(cfg.get("corruptions") or grid.corruptions)
     methods = list(cfg.get("methods") or grid.methods)
@@ -51,7 +54,8 @@ def main(cfg: DictConfig) -> None:
     for corpus_name in corpora:
         corpus = None if is_c3d_data(corpus_name) else load_corpus(corpus_name, limit=cfg.limit)
         for corruption in corruptions:
-            ev = evaluate(corpus_name, corruption, methods, cfg.repeats, cfg.fold, cfg.limit, corpus=corpus)
+            ev = evaluate(corpus_name, corruption, methods, cfg.repeats, cfg.fold, cfg.limit, corpus=corpus,
+                          parallel=parallel)  # fmt: skip
             all_rows += ev.rows
             plot = out / f"{ev.data}_{corruption.replace(':', '-')}.png"
             plot_per_motion(ev, plot, title=f"{ev.data}: {corruption}")
