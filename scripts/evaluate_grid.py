@@ -6,7 +6,7 @@
     python scripts/evaluate_grid.py grid=bandai2_gaps workers=0          # in this process, no Dask
 
 For each (corpus, corruption) the report holds the summary table (ratios as in PROTOCOL.md) and a plot of
-the error per motion (like the EBF paper's Figures 5 and 9); it also writes one CSV of every row.
+the error per motion (like the EBF paper's Figures 5 and 9); it also writes every row to rows.csv.gz.
 """
 
 from __future__ import annotations
@@ -71,7 +71,7 @@ def main(cfg: DictConfig) -> None:
             for name, reason in ev.skipped:
                 lines.append(f"- skipped {name}: {reason}")
             print(f"{ev.data}: {corruption}\n{table(ev)}\n", flush=True)
-    write_csv(out / "rows.csv", all_rows)
+    write_csv(out / "rows.csv.gz", all_rows)
     (out / "report.md").write_text("\n".join(lines) + "\n")
     print(f"wrote {out / 'report.md'}")
 

@@ -184,3 +184,16 @@ def test_headline_reference_is_the_best_of_the_three_gaussians():
     assert headline(Evaluation("x", "noise+gaps", "angles", [])) == ("gap_err_deg", ("lerp+gaussian-58ms",))
     assert headline(Evaluation("x", "gaps", "angles", [])) == ("gap_err_deg", ("lerp",))
     assert headline(Evaluation("x", "segment-gap:arms:1", "points", [])) == ("point_err_cm", ("lerp",))
+
+
+def test_write_csv_gzip_is_reproducible(tmp_path):
+    import gzip
+
+    from mocapnet.evaluate.report import write_csv
+
+    ev = evaluate("sample", "gaps", ["lerp"], repeats=1, progress=False)
+    write_csv(tmp_path / "a.csv", ev.rows)
+    write_csv(tmp_path / "a.csv.gz", ev.rows)
+    write_csv(tmp_path / "b.csv.gz", ev.rows)
+    assert gzip.decompress((tmp_path / "a.csv.gz").read_bytes()) == (tmp_path / "a.csv").read_bytes()
+    assert (tmp_path / "a.csv.gz").read_bytes() == (tmp_path / "b.csv.gz").read_bytes()

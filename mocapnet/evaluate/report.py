@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import csv
+import gzip
+import io
 import math
 import os
 from pathlib import Path
@@ -101,12 +103,15 @@ def table(ev: Evaluation, markdown: bool = False) -> str:
 
 
 def write_csv(path: str | os.PathLike, rows: list[dict]) -> None:
-    """One line per (method, corruption, file, repeat) with the columns of ``ROW_FIELDS``."""
-    with atomic_output(path) as tmp, open(tmp, "w", newline="") as fh:
-        writer = csv.DictWriter(fh, fieldnames=list(ROW_FIELDS))
-        writer.writeheader()
-        for r in rows:
-            writer.writerow({k: (f"{r[k]:.6g}" if isinstance(r[k], float) else r[k]) for k in ROW_FIELDS})
+    """One line per (method, corruption, file, repeat) with the columns of ``ROW_FIELDS``; gzip-compressed
+    (reproducibly: no name or time in the header) when ``path`` ends in ``.gz``."""
+    with atomic_output(path) as tmp, open(tmp, "wb") as raw:
+        packed = gzip.GzipFile(filename="", mode="wb", fileobj=raw, mtime=0) if str(path).endswith(".gz") else None
+        with io.TextIOWrapper(packed or raw, encoding="utf-8", newline="") as fh:
+            writer = csv.DictWriter(fh, fieldnames=list(ROW_FIELDS))
+            writer.writeheader()
+            for r in rows:
+                writer.writerow({k: (f"{r[k]:.6g}" if isinstance(r[k], float) else r[k]) for k in ROW_FIELDS})
 
 
 def plot_per_motion(ev: Evaluation, path: str | os.PathLike, title: str = "") -> None:
