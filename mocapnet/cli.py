@@ -24,7 +24,8 @@ Clips are scored on Dask worker processes (one per core, 1 torch/BLAS thread eac
 process, --scheduler = an existing cluster); methods are built and tuned once, and every clip's corruption is
 seeded by (corpus, file, repeat, corruption), so the scores do not depend on where they ran.
 The table shows the mean over clips and repeats of each clip's error; 'ratio' divides the headline error by
-that of the best Gaussian baseline (noise), lerp+gaussian-58ms (noise+gaps) or lerp (gaps, point data)."""
+that of the best reference baseline (PROTOCOL.md): of gaussian-58ms, gaussian-125ms and gaussian-tuned for
+noise, of lerp and spline for gaps (angles or points), lerp+gaussian-58ms for noise+gaps."""
 
 CLEAN_EXAMPLE = """\
 examples:

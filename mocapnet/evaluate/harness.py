@@ -39,6 +39,7 @@ ROW_FIELDS = (
     "seconds",
 )
 GAUSSIANS = ("gaussian-58ms", "gaussian-125ms", "gaussian-tuned")
+INTERPOLATIONS = ("lerp", "spline")
 CLIPS_PER_TASK = 8  # clips scored by one Dask task (amortises the per-task overhead)
 
 
@@ -63,15 +64,16 @@ class Reference:
 
 
 def reference(corruption: str | Corruption, space: str) -> Reference:
-    """The reference of a corruption: the best of the three Gaussians (58 ms, 125 ms, tuned) for noise,
-    lerp + Gaussian 58 ms for ``noise+gaps``, lerp for gaps and for point data."""
+    """The reference of a corruption (PROTOCOL.md 'Reference baseline': the best baseline a user could pick):
+    the best of the three Gaussians (58 ms, 125 ms, tuned) for noise, the better of lerp and spline for gaps
+    (angles or points), lerp + Gaussian 58 ms for ``noise+gaps`` (gaps in noise: fill, then smooth)."""
     c = Corruption.parse(corruption)
     if space == "points":
-        return Reference("point_err_cm", ("lerp",))
+        return Reference("point_err_cm", INTERPOLATIONS)
     if c.kind == "noise+gaps":
         return Reference("gap_err_deg", ("lerp+gaussian-58ms",), also=("lerp",))
     if c.has_gaps:
-        return Reference("gap_err_deg", ("lerp",))
+        return Reference("gap_err_deg", INTERPOLATIONS)
     return Reference("angle_err_deg", GAUSSIANS, also=("noisy",))
 
 

@@ -22,8 +22,8 @@ def _mean(values: list[float]) -> float:
 
 def summarize(ev: Evaluation) -> list[dict]:
     """One dict per method: means over (file, repeat) rows of each metric, frames/s, and the ratio to the
-    reference baseline (best Gaussian for noise; lerp+Gaussian-58ms for noise+gaps; lerp for gaps and
-    point data), taken on the headline metric (``ratio_of``)."""
+    best reference baseline of ``harness.reference`` (the three Gaussians for noise; lerp and spline for gaps;
+    lerp+Gaussian-58ms for noise+gaps), taken on the headline metric (``ratio_of``)."""
     by_method: dict[str, list[dict]] = {}
     for r in ev.rows:
         by_method.setdefault(r["method"], []).append(r)
