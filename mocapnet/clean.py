@@ -54,6 +54,8 @@ def file_format(path: str | os.PathLike) -> str:
 def check_output_name(src: str | os.PathLike, out: str | os.PathLike) -> None:
     """Refuse an output whose format (by extension, case-insensitive) differs from the input's or is missing."""
     want = file_format(src)
+    if not str(out).strip():
+        raise MocapFileError(f"output path is empty (input {src})")
     try:
         got = file_format(out)
     except MocapFileError:

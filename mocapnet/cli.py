@@ -263,6 +263,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("default")
+            warnings.showwarning = _show_warning
             return args.func(args)
     except (MocapFileError, OSError, ValueError, LookupError, OverflowError, RecursionError) as exc:
         print(f"mocapnet: error: {error_line(exc)}", file=sys.stderr)
@@ -270,6 +271,11 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("mocapnet: interrupted; nothing was written for the file in progress", file=sys.stderr)
         return 130
+
+
+def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """Warnings as one line each on stderr: ``mocapnet: warning: …``."""
+    print(f"mocapnet: warning: {textwrap.shorten(str(message)[:2000], 300, placeholder=' …')}", file=sys.stderr)
 
 
 def error_line(exc: BaseException) -> str:

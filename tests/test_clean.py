@@ -77,7 +77,7 @@ def test_bool_and_01_masks_in_both_shapes(tmp_path, short_motion):
 @pytest.mark.parametrize("name", ["out", "out.c3d", "out.bvh.txt", ""])
 def test_output_name_must_match_the_input_format(tmp_path, short_bvh, name):
     out = tmp_path / name if name else ""
-    with pytest.raises(MocapFileError, match="output name must end in"):
+    with pytest.raises(MocapFileError, match="output name must end in" if name else "output path is empty"):
         check_output_name(short_bvh, out)
 
 
