@@ -5,18 +5,25 @@ A *gap* is a run of missing frames of one marker. For each gap, candidates are t
 whose fill passes the check is kept:
 
 * ``rigid`` — carried with three or more visible markers that stay rigid with it (:mod:`.rigid`; the
-  "rigid body fill" of Vicon and Qualisys);
-* ``pca`` — the clip's inter-marker correlations (:mod:`.pca`; NaN, hence skipped, where PCA cannot be
-  trusted);
+  "rigid body fill" of Vicon and Qualisys). Refused when the partners themselves deviate from their rigid
+  configuration by more than ``max_residual_cm`` (1 cm RMS over the gap) — ``max_residual_one_edge_cm``
+  (0.5 cm) when only one edge of the gap is measured, since no second edge corrects the drift;
+* ``pca`` — the clip's inter-marker correlations (:mod:`.pca`; skipped where PCA cannot be trusted);
 * ``knn`` — nearest poses of a database of clean takes (only when a database is given);
-* ``spline``, ``lerp`` — interpolation in time, only between two measured edges and only for gaps of at
-  most ``max_interp_s`` seconds (a straight line through a long gap passes any speed check and is still
-  made up).
+* ``spline``, ``lerp`` — interpolation in time, only for gaps of at most ``max_interp_s`` seconds (a
+  straight line through a long gap passes any speed check and is still made up).
 
-Gaps of at most ``spline_first_s`` seconds try ``spline`` first: over a few frames a marker's own path
-predicts it better than its neighbours do. Reconstructions that do not meet the measured edges by
+``pca``, ``knn``, ``spline`` and ``lerp`` need both edges of the gap measured: interpolation cannot
+extrapolate, and PCA carried from one edge drifted by 17-22 cm on the occlusion benchmark
+(``scripts/bench_c3d_fill.py``); a gap that reaches the start or end of the take is filled by ``rigid`` or
+not at all. Gaps of at most ``spline_first_s`` seconds try ``spline`` first: over a few frames a marker's
+own path predicts it better than its neighbours do. Reconstructions that do not meet the measured edges by
 construction (``pca``, ``knn``) are shifted by the offset between their linear extrapolation and the
 measured edge samples, blended linearly across the gap.
+
+When no candidate fills the whole gap, ``rigid`` fills what it can from each measured edge: as far into the
+gap as three rigid partners stay in view, halving the piece until its partners pass the residual bound.
+The rest of the gap stays missing (reported as ``unfilled_spans``).
 
 **Check** (the plausibility figure of ``c3d-fillcheck``): every frame-to-frame step that touches a filled
 sample — the steps into and out of the gap included — divided by the largest step the same marker makes
@@ -42,6 +49,9 @@ from mocapnet.motion import Markers
 
 CANDIDATES = ("rigid", "pca", "knn", "spline", "lerp")
 INTERPOLATORS = ("spline", "lerp")
+# Candidates that need both edges of a gap measured: interpolation cannot extrapolate, and PCA / kNN carried
+# from one edge drifted by 17-22 cm on the occlusion benchmark (rigid one-sided fills: 3-8 cm).
+NEED_BOTH_EDGES = ("pca", "knn", *INTERPOLATORS)
 _MIN_MEASURED_STEPS = 10  # a marker with fewer measured steps is compared with the largest of all markers
 
 
@@ -130,12 +140,15 @@ class AutoFill:
 class _Candidates:
     """Lazily computed whole-take fills and the per-gap rigid fill for :func:`auto_fill`."""
 
-    def __init__(self, markers: Markers, database: str | None, rigid_options: dict) -> None:
+    def __init__(
+        self, markers: Markers, database: str | None, rigid_options: dict, max_residual_cm: tuple[float, float]
+    ) -> None:
         self.markers = markers
         self.points = markers.points
         self.visible = markers.visible
         self.database = database
         self.rigid_options = rigid_options
+        self.max_residual_cm = max_residual_cm
         self._whole: dict[str, np.ndarray] = {}
         self._spread: np.ndarray | None = None
 
@@ -171,6 +184,9 @@ class _Candidates:
             got = rigid_fill_gap(self.points, self.visible, self.spread(), marker, start, stop, **self.rigid_options)
             if got is None:
                 return None, {"reason": "fewer than 3 rigid partners visible through the gap"}
+            gate = self.max_residual_cm[got.edges - 1]
+            if got.residual_cm > gate:
+                return None, {"reason": f"rigid partners deform by {got.residual_cm:.2f} cm RMS > {gate:g} cm"}
             labels = [self.markers.labels[p] for p in got.partners]
             return got.points, {"partners": labels, "fit_residual_cm": round(got.residual_cm, 3)}
         fill = self.whole(name)[start:stop, marker]
@@ -197,6 +213,8 @@ def auto_fill(
     order: Sequence[str] = CANDIDATES,
     max_std_cm: float = 2.0,
     max_partners: int = 6,
+    max_residual_cm: float = 1.0,
+    max_residual_one_edge_cm: float = 0.5,
 ) -> AutoFill:
     """Fill each gap of ``markers`` with the first candidate of ``order`` whose fill passes the step check
     (module docstring), leaving the gap missing when none does.
@@ -210,6 +228,10 @@ def auto_fill(
     spline_first_s : gaps up to this long (seconds) try ``spline`` first.
     order : candidates in the order they are tried (subset of ``CANDIDATES``).
     max_std_cm, max_partners : rigid partners' largest distance spread (cm) and how many are used.
+    max_residual_cm, max_residual_one_edge_cm : a rigid fill whose partners deviate from their rigid
+        configuration by more than this (RMS over the gap, cm) is refused; the second bound is for fills
+        carried from one measured edge (gap at the end of the take, or part of a gap), which no second edge
+        corrects.
 
     Returns
     -------
@@ -227,22 +249,27 @@ def auto_fill(
     n_frames = markers.n_frames
     reference = largest_measured_steps(points, visible)
     candidates = _Candidates(
-        markers, str(database) if database else None, {"max_std_cm": max_std_cm, "max_partners": max_partners}
+        markers,
+        str(database) if database else None,
+        {"max_std_cm": max_std_cm, "max_partners": max_partners},
+        (max_residual_one_edge_cm, max_residual_cm),
     )
     out = points.copy()
     filled = np.zeros(visible.shape, dtype=bool)
     gaps: list[dict] = []
 
-    def accept(m: int, start: int, stop: int, name: str, report: dict) -> bool:
+    def accept(m: int, start: int, stop: int, name: str, report: dict, note: bool = True) -> bool:
         fill, info = candidates.fill(name, m, start, stop)
         if fill is None:
-            report["tried"].append(f"{name}: {info['reason']}")
+            if note:
+                report["tried"].append(f"{name}: {info['reason']}")
             return False
         trial = out[:, m].copy()
         trial[start:stop] = fill
         ratio = step_ratio(trial, start, stop, reference[m])
         if not ratio <= limit:
-            report["tried"].append(f"{name}: step ratio {ratio:.2f} > {limit:g}")
+            if note:
+                report["tried"].append(f"{name}: step ratio {ratio:.2f} > {limit:g}")
             return False
         out[start:stop, m] = fill
         filled[start:stop, m] = True
@@ -263,7 +290,7 @@ def auto_fill(
             for name in _order(seconds, order, spline_first_s):
                 if name == "knn" and candidates.database is None:
                     continue
-                if name in INTERPOLATORS and not two_sided:
+                if name in NEED_BOTH_EDGES and not two_sided:
                     report["tried"].append(f"{name}: gap reaches the end of the take")
                 elif name in INTERPOLATORS and seconds > max_interp_s:
                     report["tried"].append(f"{name}: gap longer than {max_interp_s:g} s")
@@ -271,8 +298,11 @@ def auto_fill(
                     break
             else:
                 if "rigid" in order:
-                    for piece in _rigid_pieces(candidates, m, start, stop, max_std_cm):
-                        accept(m, *piece, "rigid", report)
+                    for a, b in _rigid_pieces(candidates, m, start, stop, max_std_cm):
+                        # Shorter and shorter pieces next to the edge until the partners stay rigid enough.
+                        n = b - a
+                        while n and not accept(m, *((a, a + n) if a == start else (b - n, b)), "rigid", report, False):
+                            n //= 2
             _finish(report, filled[start:stop, m], start)
     return AutoFill(out, filled, gaps)
 

@@ -212,6 +212,8 @@ def _pca(
 
     def clean(noisy: Markers) -> np.ndarray:
         filled = pca_fill(noisy.points, noisy.visible, weight_scale_cm, missing_weight, distal_threshold, min_cum_sv)
-        return fill_remaining_linear(noisy, filled, "pca could not rebuild a marker (too few complete frames)")
+        return fill_remaining_linear(
+            noisy, filled, "pca cannot be trusted for this marker (too few frames or markers in view with it)"
+        )
 
     return clean

@@ -79,12 +79,13 @@ def kabsch(source: np.ndarray, target: np.ndarray, weights: np.ndarray | None = 
 
 @dataclass(frozen=True)
 class RigidFill:
-    """A rigid-body fill of one gap: ``points [b - a, 3]`` cm, the partner markers used and the RMS fit
-    residual of the partners over the gap (cm)."""
+    """A rigid-body fill of one gap: ``points [b - a, 3]`` cm, the partner markers used, the RMS fit
+    residual of the partners over the gap (cm) and how many measured edges (1 or 2) it was carried from."""
 
     points: np.ndarray
     partners: tuple[int, ...]
     residual_cm: float
+    edges: int
 
 
 def _measured_edges(visible: np.ndarray, marker: int, start: int, stop: int) -> list[int]:
@@ -171,7 +172,7 @@ def rigid_fill_gap(
     else:
         w = (np.arange(start, stop) - start + 1) / (stop - start + 1)
         track = (1.0 - w)[:, None] * tracks[0] + w[:, None] * tracks[1]
-    return RigidFill(track, tuple(int(p) for p in partners), float(max(residuals)))
+    return RigidFill(track, tuple(int(p) for p in partners), float(max(residuals)), len(edges))
 
 
 def rigid_fill(points: np.ndarray, visible: np.ndarray, max_std_cm: float = 2.0, max_partners: int = 6) -> np.ndarray:

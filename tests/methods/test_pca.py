@@ -100,6 +100,8 @@ def test_registered_pca_says_what_it_could_not_rebuild(tennis) -> None:
     visible[:5, 0] = True
     visible[:5, 1:] = False  # marker 0 is never seen with another marker
     noisy = Markers(pts, visible, tennis.labels, tennis.fps, "stairs")
-    with pytest.warns(UserWarning, match=rf"stairs: pca could not rebuild a marker.*{tennis.labels[0]} frames 5-199"):
+    with pytest.warns(
+        UserWarning, match=rf"stairs: pca cannot be trusted for this marker.*{tennis.labels[0]} frames 5-199"
+    ):
         out = build_method("pca", space="points").clean(noisy)
     assert np.isfinite(out).all()
