@@ -40,7 +40,7 @@ from torch.utils.data import DataLoader, IterableDataset
 
 from mocapnet.corpus import load_corpus
 from mocapnet.corrupt import additive_noise, corrupt_motion, gap_mask, long_gap_mask, seed_for, spatial_noise
-from mocapnet.methods.baselines import lerp_fill
+from mocapnet.fill import lerp_fill
 from mocapnet.motion import Motion
 from mocapnet.nn.features import ClipArrays, Normaliser, scored_index, scored_joint_of_channel, topology_hash
 

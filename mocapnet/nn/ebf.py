@@ -26,7 +26,15 @@ import torch
 from torch import nn
 
 from mocapnet.nn.base import CleanerModule
-from mocapnet.nn.layers import BLSTM, apply_filter, gaussian_weights, init_log_sigma_bias, mlp, tapered
+from mocapnet.nn.layers import (
+    BLSTM,
+    gaussian_filter,
+    gaussian_weights,
+    init_log_sigma_bias,
+    mlp,
+    softmax_filter,
+    tapered,
+)
 
 
 class EBF(CleanerModule):
@@ -98,8 +106,17 @@ class EBF(CleanerModule):
         return params[..., : self.n_filter].clamp(-5.0, 5.0).exp()
 
     def apply_params(self, filled: torch.Tensor, params: torch.Tensor) -> torch.Tensor:
-        """Filter ``filled [B, T, C]`` with the head output ``params [B, T, P]`` → ``[B, T, C]`` degrees."""
-        return self.debias(apply_filter(filled, self.filter_weights(params)), params)
+        """Filter ``filled [B, T, C]`` with the head output ``params [B, T, P]`` → ``[B, T, C]`` degrees, tap by
+        tap (``layers.softmax_filter``: the per-frame kernels ``[B, C, T, K]`` are never formed)."""
+        half = self.hparams.half
+        raw = params[..., : self.n_filter]
+        if self.hparams.filter_shape == "gaussian":
+            filtered = gaussian_filter(filled, raw.clamp(-5.0, 5.0), half)
+        else:
+            k = 2 * half + 1
+            top = raw.unflatten(-1, (-1, k)).amax(-1)  # [B, T, C]
+            filtered = softmax_filter(filled, lambda tap: raw[..., tap + half :: k], half, top)
+        return self.debias(filtered, params)
 
     def debias(self, filtered: torch.Tensor, params: torch.Tensor) -> torch.Tensor:
         """Subtract the predicted bias (``bias=True``; else identity): ``filtered [..., C]`` degrees, head output

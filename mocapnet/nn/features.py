@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from mocapnet.kinematics import rotation_sequence
+from mocapnet.kinematics import euler_to_matrix, rotation_sequence
 from mocapnet.motion import Motion, Skeleton
 
 #: Floor on the per-channel normalising scale (degrees): nearly constant channels stay finite.
@@ -43,14 +43,14 @@ def scored_joint_of_channel(skeleton: Skeleton) -> np.ndarray:
     return np.searchsorted(skeleton.scored_joints, joints)
 
 
-def context_rotations(skeleton: Skeleton, channels: np.ndarray) -> Rotation:
-    """Global rotation of the last context joint (the hips), one per frame, from channels ``[T, C]``."""
-    rot = Rotation.identity(channels.shape[0])
+def context_rotations(skeleton: Skeleton, channels: np.ndarray) -> np.ndarray:
+    """Global rotation matrices ``[T, 3, 3]`` of the last context joint (the hips) from channels ``[T, C]``."""
+    rot = np.broadcast_to(np.eye(3), (channels.shape[0], 3, 3))
     for joint in skeleton.context_joints:
         seq, cols = rotation_sequence(skeleton, joint)
         if seq:
-            rot = rot * Rotation.from_euler(seq, channels[:, cols], degrees=True)
-    return rot
+            rot = rot @ euler_to_matrix(channels[:, cols], seq)
+    return np.ascontiguousarray(rot)
 
 
 def _axis_matrix(axis: str, angle_rad: float) -> np.ndarray:
@@ -76,15 +76,22 @@ def context_matrix(chain: list[tuple[str, np.ndarray]], frame: np.ndarray) -> np
     return out
 
 
+def matrix_rotvec(rel: np.ndarray) -> np.ndarray:
+    """Rotation vectors ``[N, 3]`` (rad) of rotation matrices ``[N, 3, 3]``; angles of 179° and more (rare
+    between consecutive frames) go through scipy, the rest through the closed form."""
+    angle = np.arccos(np.clip((np.trace(rel, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0))
+    vee = np.stack([rel[:, 2, 1] - rel[:, 1, 2], rel[:, 0, 2] - rel[:, 2, 0], rel[:, 1, 0] - rel[:, 0, 1]], 1) / 2.0
+    small = angle < 1e-8
+    out = vee * np.where(small, 1.0, angle / np.where(small, 1.0, np.sin(angle)))[:, None]
+    big = angle > np.deg2rad(179.0)
+    if big.any():
+        out[big] = Rotation.from_matrix(rel[big]).as_rotvec()
+    return out
+
+
 def relative_rotvec(prev: np.ndarray, cur: np.ndarray) -> np.ndarray:
-    """Rotation vector ``[3]`` (rad) of ``prev⁻¹ cur`` for 3×3 rotation matrices (angles below 179°, as
-    between consecutive frames; larger ones go through scipy)."""
-    rel = prev.T @ cur
-    angle = np.arccos(np.clip((np.trace(rel) - 1.0) / 2.0, -1.0, 1.0))
-    if angle > np.deg2rad(179.0):
-        return Rotation.from_matrix(rel).as_rotvec()
-    vee = np.array([rel[2, 1] - rel[1, 2], rel[0, 2] - rel[2, 0], rel[1, 0] - rel[0, 1]]) / 2.0
-    return vee if angle < 1e-8 else vee * (angle / np.sin(angle))
+    """Rotation vector ``[3]`` (rad) of ``prev⁻¹ cur`` for 3×3 rotation matrices."""
+    return matrix_rotvec((prev.T @ cur)[None])[0]
 
 
 def root_angular_velocity(skeleton: Skeleton, channels: np.ndarray, fps: float) -> np.ndarray:
@@ -97,7 +104,7 @@ def root_angular_velocity(skeleton: Skeleton, channels: np.ndarray, fps: float) 
     if n < 2:
         return out
     rot = context_rotations(skeleton, channels)
-    out[1:] = (rot[:-1].inv() * rot[1:]).as_rotvec() * fps
+    out[1:] = matrix_rotvec(np.swapaxes(rot[:-1], 1, 2) @ rot[1:]) * fps
     out[0] = out[1]
     return out
 

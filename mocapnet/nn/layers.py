@@ -7,6 +7,7 @@ Shapes: ``B`` batch, ``T`` frames, ``C`` scored channels, ``F`` features, ``K`` 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import torch
 from torch import nn
@@ -111,11 +112,49 @@ def gaussian_weights(log_sigma: torch.Tensor, half: int) -> torch.Tensor:
     return torch.softmax(-0.5 * k * k * inv_var, dim=-1)
 
 
-def apply_filter(x: torch.Tensor, weights: torch.Tensor) -> torch.Tensor:
-    """Per-channel, per-frame FIR filter: ``x [B, T, C]``, ``weights [B, C, T, K]`` (each summing to 1)
-    → ``[B, T, C]``; one unfold and one weighted sum."""
-    half = (weights.shape[-1] - 1) // 2
-    return (unfold_taps(x, half) * weights).sum(-1).transpose(1, 2)
+def pad_nearest(x: torch.Tensor, half: int) -> torch.Tensor:
+    """``x [B, T, C]`` with ``half`` copies of its first and last frames added along time, ``[B, T + 2·half, C]``."""
+    return torch.cat([x[:, :1].expand(-1, half, -1), x, x[:, -1:].expand(-1, half, -1)], dim=1)
+
+
+def softmax_filter(
+    x: torch.Tensor, tap_logit: Callable[[int], torch.Tensor], half: int, max_logit: torch.Tensor
+) -> torch.Tensor:
+    """Per-channel, per-frame FIR filter applied tap by tap: ``x [B, T, C]`` →
+    ``out[t, c] = Σ_k w_k[t, c] · x[t + k, c]`` with ``w = softmax_k(tap_logit(k))``, ``k = -half … half``,
+    edges padded with the nearest frame. ``tap_logit(k)`` gives the logits ``[B, T, C]`` of tap k and
+    ``max_logit [B, T, C]`` their maximum over k (keeps the exponentials finite). Memory is a few
+    ``[B, T, C]`` arrays: the ``[B, C, T, K]`` taps are never formed."""
+    n = x.shape[1]
+    padded = pad_nearest(x, half)
+    num = torch.zeros_like(x)
+    den = torch.zeros_like(x)
+    for k in range(-half, half + 1):
+        w = torch.exp(tap_logit(k) - max_logit)
+        num = num + w * padded[:, half + k : half + k + n]
+        den = den + w
+    return num / den
+
+
+def gaussian_filter(x: torch.Tensor, log_sigma: torch.Tensor, half: int) -> torch.Tensor:
+    """``x [B, T, C]`` filtered by the normalised Gaussian of ``log σ [B, T, C]`` (σ in frames, one per frame
+    and channel) over ``2·half+1`` taps, edges padded with the nearest frame.
+
+    Tap by tap and symmetric: with ``q = exp(-1/2σ²)`` the weight of taps ±k is ``q^(k²)``, built by products
+    (``q^((k+1)²) = q^(k²) · q^(2k+1)``), so a tap costs a few multiply-adds on ``[B, T, C]`` arrays and no
+    exponential; the ``[B, C, T, K]`` kernels are never formed."""
+    n = x.shape[1]
+    padded = pad_nearest(x, half)
+    q = torch.exp(-0.5 * torch.exp(-2.0 * log_sigma))
+    q2 = q * q
+    weight, ratio = torch.ones_like(q), q
+    num, den = x, torch.ones_like(q)
+    for k in range(1, half + 1):
+        weight = weight * ratio
+        ratio = ratio * q2
+        num = num + weight * (padded[:, half + k : half + k + n] + padded[:, half - k : half - k + n])
+        den = den + 2.0 * weight
+    return num / den
 
 
 def init_log_sigma_bias(layer: nn.Linear, sigma_frames: float) -> None:

@@ -2,9 +2,18 @@
 
 from __future__ import annotations
 
+import pytest
 import torch
 
-from mocapnet.nn.layers import BLSTM, apply_filter, gaussian_weights, phase_groups, unfold_taps, window_starts
+from mocapnet.nn.layers import (
+    BLSTM,
+    gaussian_filter,
+    gaussian_weights,
+    phase_groups,
+    softmax_filter,
+    unfold_taps,
+    window_starts,
+)
 
 
 def test_unfold_taps_shape_and_edges():
@@ -25,14 +34,31 @@ def test_gaussian_weights_sum_to_one_and_limits():
     torch.testing.assert_close(w.flip(-1), w)
 
 
-def test_apply_filter_identity_and_constant():
+def _reference(x: torch.Tensor, weights: torch.Tensor) -> torch.Tensor:
+    """The filter written out with the [B, C, T, K] taps: ``x [B, T, C]``, ``weights [B, C, T, K]``."""
+    return (unfold_taps(x, (weights.shape[-1] - 1) // 2) * weights).sum(-1).transpose(1, 2)
+
+
+@pytest.mark.parametrize("length", [1, 7, 40])
+def test_tap_by_tap_filters_equal_the_unfolded_kernels(length):
+    torch.manual_seed(1)
+    x = torch.randn(2, length, 3) * 20.0
+    log_sigma = torch.empty(2, length, 3).uniform_(-5.0, 5.0)
+    expected = _reference(x, gaussian_weights(log_sigma.transpose(1, 2), 15))
+    torch.testing.assert_close(gaussian_filter(x, log_sigma, 15), expected, rtol=1e-5, atol=1e-4)
+    logits = torch.randn(2, length, 3, 31) * 4.0
+    expected = _reference(x, torch.softmax(logits.permute(0, 2, 1, 3), -1))
+    got = softmax_filter(x, lambda k: logits[..., k + 15], 15, logits.amax(-1))
+    torch.testing.assert_close(got, expected, rtol=1e-5, atol=1e-4)
+
+
+def test_filters_identity_and_constant():
     x = torch.randn(2, 20, 3)
-    delta = torch.zeros(2, 3, 20, 31)
-    delta[..., 15] = 1.0
-    torch.testing.assert_close(apply_filter(x, delta), x)
+    torch.testing.assert_close(gaussian_filter(x, torch.full((2, 20, 3), -5.0), 15), x)
     const = torch.full((1, 20, 1), 7.0)
-    w = torch.softmax(torch.randn(1, 1, 20, 31), -1)
-    torch.testing.assert_close(apply_filter(const, w), const)
+    torch.testing.assert_close(gaussian_filter(const, torch.randn(1, 20, 1), 15), const)
+    logits = torch.randn(1, 20, 1, 31)
+    torch.testing.assert_close(softmax_filter(const, lambda k: logits[..., k + 15], 15, logits.amax(-1)), const)
 
 
 def test_window_starts_and_phases():
