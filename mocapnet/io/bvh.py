@@ -25,6 +25,7 @@ at ±180° become continuous), which leaves every rotation unchanged.
 
 from __future__ import annotations
 
+import dataclasses
 import gzip
 import io
 import math
@@ -63,14 +64,21 @@ _FRAME_TIME_RE = re.compile(rb"frame\s+time\s*:(.*)", re.IGNORECASE | re.DOTALL)
 _BAD_BYTE_RE = re.compile(rb"[^\t\n\x0b\x0c\r\x20-\x7e]")  # anything but printable ASCII and whitespace
 _NON_SPACE_RE = re.compile(rb"\S")
 _NAME_BAD_RE = re.compile(r"[{}\x00-\x1f\x7f]")
+_MOTION_LINE_RE = re.compile(rb"^[ \t\x0b\x0c]*MOTION[ \t\x0b\x0c]*$", re.MULTILINE | re.IGNORECASE)
+_HIERARCHY_CACHE: dict[bytes, tuple[Skeleton, float, int, int]] = {}  # HIERARCHY bytes -> parse result
+_HIERARCHY_CACHE_SIZE = 16
 _CHANNEL_BY_BYTES = {c.encode(): c for c in CHANNEL_NAMES}
 # Frame time range accepted, seconds: 1 MHz down to one frame an hour.
 _FRAME_TIME_RANGE = (1e-6, 3600.0)
-# Fixed-point fast path: the bytes below '0' (48) allowed in MOTION text (tab, LF, CR, space, + - .).
-_PAD = b" " * 15 + b"\n"
-_WS_CODES = [9, 10, 13, 32]
-_SPECIAL_OK = np.isin(np.arange(48), _WS_CODES + [43, 45, 46])
-_ASCII_ZEROS = 48.0 * (10.0 ** np.arange(17) - 1.0) / 9.0  # 48 * (1 + 10 + ... + 10**(d-1)) for d digits
+# Fixed-point fast path, 8 bytes at a time: masks of the last d bytes of a little-endian word (d = 0..8), the
+# ASCII '0' in those bytes, and the constants of the digit checks and of ``_eight_digits``.
+_HIGH_BYTES = np.array([(2**64 - 1) ^ (2 ** (8 * (8 - d)) - 1) for d in range(9)], dtype=np.uint64)
+_HIGH_ZEROS = _HIGH_BYTES & np.uint64(0x3030303030303030)
+_PLUS_118 = np.uint64(0x7676767676767676)  # a byte above 9 gets its high bit set (digit values 0-9 do not)
+_HIGH_BITS = np.uint64(0x8080808080808080)
+_LOW_OF_QUADS = np.uint64(0x000000FF000000FF)
+_MUL_HIGH = np.uint64(100 + (1000000 << 32))
+_MUL_LOW = np.uint64(1 + (10000 << 32))
 
 
 def _quote(token: bytes | str) -> str:
@@ -323,7 +331,7 @@ class _Hierarchy:
         b"HIERARCHY": _hierarchy,
     }
 
-    def skeleton(self, cm_per_unit: float = 1.0) -> Skeleton:
+    def skeleton(self) -> Skeleton:
         return Skeleton(
             names=tuple(self.names),
             parents=tuple(self.parents),
@@ -331,7 +339,6 @@ class _Hierarchy:
             channels=tuple(self.channels),
             end_sites=np.array(self.end_sites, dtype=np.float64).reshape(-1, 3),
             end_parents=tuple(self.end_parents),
-            cm_per_unit=cm_per_unit,
         )
 
 
@@ -392,6 +399,30 @@ def _parse_hierarchy(path: Path, lines: _Lines) -> _Hierarchy:
     raise MocapFileError(f"{path}:{lineno}: file ends before the MOTION section (truncated hierarchy?)")
 
 
+def _read_hierarchy(path: Path, lines: _Lines) -> tuple[Skeleton, float]:
+    """The skeleton (unit 1.0) and its guessed unit, from the cache when these exact HIERARCHY bytes were read.
+
+    A corpus shares a few skeletons (3 distinct hierarchies among 300 bandai2 files), so the parse result is
+    kept by content for the last ``_HIERARCHY_CACHE_SIZE`` hierarchies; the cached skeleton's arrays are
+    read-only, as the skeleton is shared by the motions read with it.
+    """
+    motion = _MOTION_LINE_RE.search(lines.raw)
+    key = lines.raw[: motion.end()] if motion else None
+    hit = _HIERARCHY_CACHE.get(key) if key else None
+    if hit is None:
+        skeleton = _parse_hierarchy(path, lines).skeleton()
+        skeleton.offsets.flags.writeable = skeleton.end_sites.flags.writeable = False
+        unit = guess_cm_per_unit(skeleton)
+        skeleton = dataclasses.replace(skeleton, cm_per_unit=unit)
+        hit = skeleton, unit, lines.pos, lines.lineno
+        if key is not None and lines.pos == motion.end() + 1:
+            while len(_HIERARCHY_CACHE) >= _HIERARCHY_CACHE_SIZE:
+                del _HIERARCHY_CACHE[next(iter(_HIERARCHY_CACHE))]
+            _HIERARCHY_CACHE[key] = hit
+    skeleton, unit, lines.pos, lines.lineno = hit
+    return skeleton, unit
+
+
 def _whitespace(a: np.ndarray) -> np.ndarray:
     """Boolean mask of ASCII whitespace in a uint8 array."""
     return (a == 32) | ((a >= 9) & (a <= 13))
@@ -409,56 +440,70 @@ def _token_starts(ws: np.ndarray) -> np.ndarray:
     return np.flatnonzero(start)
 
 
-def _parse_fixed_point(body: bytes, n_channels: int) -> np.ndarray | None:
+def _eight_digits(word: np.ndarray) -> np.ndarray:
+    """Integer value of 8 decimal digits held one per byte (values 0-9, first byte most significant), uint64.
+
+    The SWAR reduction of Lemire's "parse eight digits": pairs, then quads, then all eight.
+    """
+    word = word * np.uint64(10) + (word >> np.uint64(8))
+    word = ((word & _LOW_OF_QUADS) * _MUL_HIGH + ((word >> np.uint64(16)) & _LOW_OF_QUADS) * _MUL_LOW) >> np.uint64(32)
+    return word & np.uint64(0xFFFFFFFF)
+
+
+def _parse_fixed_point(text: bytes, n_channels: int, start: int = 0) -> np.ndarray | None:
     """``[T, n_channels]`` frames when every token is ``[sign]digits.k-digits`` with one k, else None.
 
-    Vectorised over tokens, one per decimal point, using the positions of the non-digit bytes ("specials":
-    whitespace, signs, dots): after each dot come exactly k digits then whitespace; before it 1 to 15 - k
-    digits then whitespace, or a sign with whitespace before it. When those tokens' lengths add up to the count
-    of non-whitespace bytes the text holds nothing else. Exactness: a token is an integer m < 2**53 (at most 15
-    digits, summed exactly in float64) over 10**k, and the IEEE division m / 10**k is correctly rounded: the
-    same double ``float(token)`` returns.
+    Vectorised over tokens, one per decimal point, using the positions of the bytes below '0' ("specials":
+    whitespace, signs, dots): after each dot come exactly k bytes then whitespace; before it 1 to 8 bytes, then
+    whitespace or a sign with whitespace before it; those bytes are checked to be digits while they are read,
+    8 at a time (``_eight_digits``). When the tokens' lengths add up to the count of non-whitespace bytes the
+    text holds nothing else. Exactness: a token is an integer m < 10**15 < 2**53 over 10**k, and the IEEE
+    division m / 10**k is correctly rounded: the same double ``float(token)`` returns. The frames are
+    ``text[start:]``; when 9 bytes precede them, ``text[start - 1]`` is a newline and ``text`` ends with one
+    (the usual case), nothing is copied.
     """
-    a = np.frombuffer(_PAD + body + b"\n", np.uint8)  # every token has a separator on both sides
-    if np.count_nonzero(a > 57):
-        return None  # letters (exponents, nan), non-ASCII
+    if start < 9 or text[start - 1] != 10:
+        text, start = b"\n" * 9 + text[start:], 9
+    if text[-1:] != b"\n":
+        text += b"\n"
+    a = np.frombuffer(text, np.uint8)[start - 1 :]  # every token has a separator on both sides
     specials = np.flatnonzero(a < 48)
     kinds = a[specials]
-    histogram = np.bincount(kinds, minlength=48)
-    if histogram[~_SPECIAL_OK].any():
-        return None  # control characters, punctuation
     at_dot = np.flatnonzero(kinds == 46)
     n = at_dot.size
     if n == 0 or n % n_channels:
         return None
     dots = specials[at_dot]
     k = int(specials[at_dot[0] + 1] - dots[0] - 1)
-    if not 1 <= k <= 14 or (specials[at_dot + 1] - dots != k + 1).any() or (kinds[at_dot + 1] > 32).any():
+    if not 1 <= k <= 8 or (specials[at_dot + 1] - dots != k + 1).any():
         return None
-    whole = dots - specials[at_dot - 1] - 1  # digits before the dot
-    if whole.min() < 1 or whole.max() > 15 - k:
+    whole = dots - specials[at_dot - 1] - 1  # bytes between the dot and the special before it
+    if whole.min() < 1 or whole.max() > min(8, 15 - k):
         return None
-    lead = kinds[at_dot - 1]  # the byte before the digits
-    signed = lead > 32
+    lead = kinds[at_dot - 1]  # the special before the digits: whitespace or a sign
+    negative = lead == 45
+    signed = negative | (lead == 43)
+    if not (signed | (lead <= 32)).all():
+        return None
     n_signed = int(np.count_nonzero(signed))
-    if n_signed:
-        s = at_dot[signed] - 1
-        if (lead[signed] == 46).any() or (specials[s] - specials[s - 1] != 1).any() or (kinds[s - 1] > 32).any():
-            return None
-    if n_signed + int(whole.sum()) + n * (k + 1) != a.size - int(histogram[_WS_CODES].sum()):
-        return None
-    value = np.zeros(n)  # sum of byte * 10**place: integers below 2**53, so exact
-    for i in range(k):
-        value += a[dots + (1 + i)] * 10.0 ** (k - 1 - i)
-    for j in range(int(whole.max())):
-        column = a[dots - (1 + j)] * 10.0 ** (k + j)
-        if j:
-            column[whole <= j] = 0.0
-        value += column
-    value -= _ASCII_ZEROS[k + whole]  # the ASCII '0' (48) counted in each place
+    if n_signed and (a[(dots - whole - 2)[signed]] > 32).any():
+        return None  # a sign must start its token
+    newline = kinds == 10
+    if np.count_nonzero(kinds < 32) != np.count_nonzero(newline) + np.count_nonzero(kinds == 9):
+        return None  # control characters other than tab and newline (CR is gone by now)
+    non_space = int(np.count_nonzero(kinds > 32))
+    if non_space != n + n_signed or n_signed + int(whole.sum()) + n * (k + 1) != a.size - (kinds.size - non_space):
+        return None  # punctuation, stray signs or dots, bytes outside the tokens
+    words = np.ndarray((len(text) - 7,), np.dtype("<u8"), text, 0, (1,))  # 8 bytes from every offset
+    at = dots + (start - 1)  # offsets of the dots in text
+    frac = (words[at + (k - 7)] & _HIGH_BYTES[k]) - _HIGH_ZEROS[k]
+    high = (words[at - 8] & _HIGH_BYTES[whole]) - _HIGH_ZEROS[whole]
+    if (((frac + _PLUS_118) | frac | (high + _PLUS_118) | high) & _HIGH_BITS).any():
+        return None  # a byte that is not a digit (letters, non-ASCII)
+    value = (_eight_digits(high) * np.uint64(10**k) + _eight_digits(frac)).astype(np.float64)
     value /= 10.0**k
-    np.negative(value, out=value, where=lead == 45)
-    edges = np.concatenate(([0], specials[kinds == 10], [a.size]))
+    np.negative(value, out=value, where=negative)
+    edges = np.concatenate(([0], specials[newline], [a.size]))
     counts = np.diff(np.searchsorted(dots, edges))  # tokens per line
     if not (counts[counts > 0] == n_channels).all():
         return None
@@ -557,8 +602,9 @@ def _unwrap_rotations(data: np.ndarray, rotation: np.ndarray) -> None:
     """
     if data.shape[0] < 2:
         return
-    jumps = np.abs(np.diff(data, axis=0)).max(axis=0) > 180.0
-    cols = np.flatnonzero(jumps & rotation)
+    cols = np.flatnonzero(rotation & (data.max(axis=0) - data.min(axis=0) > 180.0))  # a jump is possible
+    if cols.size:
+        cols = cols[np.abs(np.diff(data[:, cols], axis=0)).max(axis=0) > 180.0]
     if cols.size:
         data[:, cols] = np.unwrap(data[:, cols], period=360.0, axis=0)
 
@@ -632,7 +678,7 @@ def _parse(raw: bytes, path: Path, cm_per_unit: float | None, unwrap: bool) -> M
     if b"\r" in raw:
         raw = raw.replace(b"\r\n", b"\n").replace(b"\r", b"\n")
     lines = _Lines(path, raw)
-    hier = _parse_hierarchy(path, lines)
+    skeleton, guessed_unit = _read_hierarchy(path, lines)
     value = lines.header(_FRAMES_RE, "Frames:")
     if not _INT_RE.fullmatch(value):
         raise MocapFileError(f"{path}:{lines.lineno}: 'Frames:' must be an integer, got {_quote(value)}")
@@ -646,16 +692,17 @@ def _parse(raw: bytes, path: Path, cm_per_unit: float | None, unwrap: bool) -> M
         )
     if n_frames == 0:
         raise MocapFileError(f"{path}:{frames_line}: empty MOTION section (Frames: 0)")
-    body, first_line = raw[lines.pos :], lines.lineno + 1
-    if _NON_SPACE_RE.search(body) is None:
+    start, first_line = lines.pos, lines.lineno + 1
+    if _NON_SPACE_RE.search(raw, start) is None:
         raise MocapFileError(f"{path}:{lines.lineno}: empty MOTION section: no frame lines after 'Frame Time:'")
-    skeleton = hier.skeleton()
     n_ch = skeleton.n_channels
     if n_ch == 0:
         raise MocapFileError(f"{path}:{frames_line}: the hierarchy declares no CHANNELS, yet frames follow")
-    _check_long_lines(path, body, first_line, n_ch)
-    data = _parse_fixed_point(body, n_ch)
+    if len(raw) - start > (raw.count(b"\n", start) + 1) * (64 * n_ch + 1024):  # some line is far too long
+        _check_long_lines(path, raw[start:], first_line, n_ch)
+    data = _parse_fixed_point(raw, n_ch, start)
     if data is None:
+        body = raw[start:]
         data = _parse_general(body, n_ch)
         if data is None:
             _diagnose_frames(path, body, first_line, n_ch)
@@ -671,9 +718,12 @@ def _parse(raw: bytes, path: Path, cm_per_unit: float | None, unwrap: bool) -> M
             f"{path}:{frames_line}: 'Frames: {n_frames}' but the MOTION section has {data.shape[0]} frame lines"
             + (" (truncated file?)" if data.shape[0] < n_frames else "")
         )
+    if cm_per_unit is None:
+        cm_per_unit = guessed_unit
+    if cm_per_unit != skeleton.cm_per_unit:
+        skeleton = dataclasses.replace(skeleton, cm_per_unit=float(cm_per_unit))
     if unwrap:
         _unwrap_rotations(data, skeleton.rotation_mask)
-    skeleton = hier.skeleton(float(guess_cm_per_unit(skeleton) if cm_per_unit is None else cm_per_unit))
     name = path.name.removesuffix(".gz").removesuffix(".bvh")
     fps = 1.0 / frame_time
     if abs(fps - round(fps)) < 1e-3 * fps:  # "Frame Time: 0.0333333" means 30 fps
