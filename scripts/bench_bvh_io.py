@@ -1,18 +1,22 @@
 """Benchmark: BVH loading CPU time of mocapnet's reader vs the PyPI ``bvh`` package (the reference).
 
-Per file, the two readers run back to back in alternating order (interleaved), each timed with
-``time.process_time`` (CPU time of this process, so other jobs on a shared machine count less), over several
-rounds. Two measurements:
+Per file, the readers run back to back in an order that rotates from file to file (interleaved), each timed
+with ``time.process_time`` (CPU time of this process, so other jobs on a shared machine count less), over
+several rounds. Two measurements:
 
 * text: both parse the same decompressed text already in memory into a float array ``[T, C]`` plus the
   joint names; mocapnet runs with ``read_bvh``'s defaults (every check, unit guess, unwrapping);
 * file: ``read_bvh(path)`` vs ``gzip`` + the ``bvh`` package on the same ``.bvh.gz`` file.
+
+The text measurement also times mocapnet with its hierarchy cache cleared before every file, and (with
+``--baseline COMMIT``) the reader of an older commit, so a speed-up on a busy machine has its reference.
 
 Values are compared file by file (mocapnet without unwrapping vs the package). It also times the parse of a
 synthetic 10,000-joint hierarchy and the write + read of a 1,000-level chain.
 
     python scripts/bench_bvh_io.py                      # first 830 files of bandai2 + all of bandai1
     python scripts/bench_bvh_io.py --files 100 --quick  # smoke run
+    python scripts/bench_bvh_io.py --baseline 0313cc4   # also the reader of an older commit, same run
 Writes benchmarks/results/bvh_io.json and .md.
 """
 
@@ -22,9 +26,12 @@ import argparse
 import gzip
 import json
 import platform
+import subprocess
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
+from types import ModuleType
 
 import numpy as np
 
@@ -33,6 +40,7 @@ sys.path.insert(0, str(ROOT))
 
 from mocapnet.corpus import data_root, list_bvh  # noqa: E402
 from mocapnet.evaluate.benchmark import git_commit  # noqa: E402
+from mocapnet.io import bvh as bvh_module  # noqa: E402
 from mocapnet.io.bvh import format_bvh, parse_bvh, read_bvh  # noqa: E402
 from mocapnet.motion import Motion, Skeleton  # noqa: E402
 
@@ -44,20 +52,34 @@ def read_with_bvh_package(text: str) -> tuple[np.ndarray, list[str]]:
     return np.array(mocap.frames, dtype=np.float64), mocap.get_joints_names()
 
 
-def interleaved(ours, theirs, items: list, rounds: int) -> tuple[float, float]:
-    """Total CPU seconds of ``ours(item)`` and ``theirs(item)`` over ``rounds``, alternating which goes first."""
-    t_ours = t_theirs = 0.0
+def interleaved(readers: dict[str, Callable], items: list, rounds: int) -> dict[str, float]:
+    """Total CPU seconds of each reader over ``items`` and ``rounds``; per item the readers run back to back,
+    in an order that rotates from item to item."""
+    names = list(readers)
+    totals = dict.fromkeys(names, 0.0)
     for r in range(rounds):
         for i, item in enumerate(items):
-            for first in (True, False) if (i + r) % 2 else (False, True):
+            shift = (i + r) % len(names)
+            for name in names[shift:] + names[:shift]:
                 t0 = time.process_time()
-                (ours if first else theirs)(item)
-                dt = time.process_time() - t0
-                if first:
-                    t_ours += dt
-                else:
-                    t_theirs += dt
-    return t_ours, t_theirs
+                readers[name](item)
+                totals[name] += time.process_time() - t0
+    return totals
+
+
+def previous_reader(commit: str) -> ModuleType:
+    """``mocapnet/io/bvh.py`` as it was at ``commit`` (git), imported as a module for a same-run baseline."""
+    source = subprocess.run(
+        ["git", "show", f"{commit}:mocapnet/io/bvh.py"], cwd=ROOT, check=True, capture_output=True, text=True
+    ).stdout
+    module = ModuleType(f"bvh_at_{commit}")
+    exec(compile(source, f"bvh.py@{commit}", "exec"), module.__dict__)  # noqa: S102 - our own file from git
+    return module
+
+
+def parse_without_cache(item: tuple[str, Path]) -> None:
+    bvh_module._HIERARCHY_CACHE.clear()
+    parse_bvh(*item)
 
 
 def synthetic(n_joints: int, chain: bool, seed: int = 0) -> Motion:
@@ -72,6 +94,7 @@ def synthetic(n_joints: int, chain: bool, seed: int = 0) -> Motion:
 def hierarchy_timings() -> dict:
     """CPU seconds: parse a 10,000-joint tree; write and read a 1,000-level chain."""
     text = format_bvh(synthetic(10_000, chain=False))
+    bvh_module._HIERARCHY_CACHE.clear()
     t0 = time.process_time()
     m = parse_bvh(text, "tree10k.bvh", cm_per_unit=1.0)
     parse_10k = time.process_time() - t0
@@ -90,12 +113,14 @@ def main() -> None:
     parser.add_argument("--files", type=int, default=830, help="bandai2 files to load (default 830)")
     parser.add_argument("--rounds", type=int, default=3, help="interleaved rounds (default 3)")
     parser.add_argument("--quick", action="store_true", help="skip bandai1")
+    parser.add_argument("--baseline", default=None, help="also time mocapnet/io/bvh.py of this git commit")
     parser.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "bvh_io")
     args = parser.parse_args()
     root = args.data_root or data_root()
     sets = {"bandai2": list_bvh(root / "bvh/bandai_namco_2")[: args.files]}
     if not args.quick:
         sets["bandai1"] = list_bvh(root / "bvh/bandai_namco_1")
+    baseline = previous_reader(args.baseline) if args.baseline else None
     results = {}
     for name, files in sets.items():
         texts = [gzip.open(f, "rb").read().decode() for f in files]
@@ -107,22 +132,27 @@ def main() -> None:
             max_diff = max(max_diff, float(np.abs(m.channels - arr).max()))
             frames += m.n_frames
         items = list(zip(texts, files))
-        text_ours, text_theirs = interleaved(
-            lambda it: parse_bvh(*it), lambda it: read_with_bvh_package(it[0]), items, args.rounds
-        )
-        file_ours, file_theirs = interleaved(
-            read_bvh, lambda f: read_with_bvh_package(gzip.open(f, "rb").read().decode()), files, args.rounds
+        text_readers = {
+            "mocapnet": lambda it: parse_bvh(*it),
+            "bvh package": lambda it: read_with_bvh_package(it[0]),
+            "mocapnet, no hierarchy cache": parse_without_cache,
+        }
+        if baseline is not None:
+            text_readers[f"mocapnet at {args.baseline}"] = lambda it: baseline.parse_bvh(*it)
+        text = interleaved(text_readers, items, args.rounds)
+        file = interleaved(
+            {"mocapnet": read_bvh, "bvh package": lambda f: read_with_bvh_package(gzip.open(f, "rb").read().decode())},
+            files,
+            args.rounds,
         )
         results[name] = {
             "files": len(files),
             "frames": frames,
             "rounds": args.rounds,
-            "text_mocapnet_cpu_s": round(text_ours, 3),
-            "text_bvh_package_cpu_s": round(text_theirs, 3),
-            "text_speedup": round(text_theirs / text_ours, 1),
-            "file_mocapnet_cpu_s": round(file_ours, 3),
-            "file_bvh_package_cpu_s": round(file_theirs, 3),
-            "file_speedup": round(file_theirs / file_ours, 1),
+            "text_cpu_s": {k: round(v, 3) for k, v in text.items()},
+            "text_speedup_vs_bvh_package": {k: round(text["bvh package"] / v, 1) for k, v in text.items()},
+            "file_cpu_s": {k: round(v, 3) for k, v in file.items()},
+            "file_speedup": round(file["bvh package"] / file["mocapnet"], 1),
             "max_abs_diff": max_diff,
         }
         print(name, results[name], flush=True)
@@ -141,20 +171,29 @@ def main() -> None:
         "# BVH loading: mocapnet vs the PyPI `bvh` package (CPU time, interleaved)",
         "",
         f"Command: `{meta['command']}` at commit {meta['commit']} on {meta['machine']}, numpy {meta['numpy']}.",
-        "CPU seconds (`time.process_time`) summed over all files and rounds; the two readers alternate per file.",
+        "CPU seconds (`time.process_time`) summed over all files and rounds; per file the readers run back to back",
+        "in an order that rotates from file to file.",
         "text = both parse the same in-memory text (mocapnet with `read_bvh`'s defaults: checks, unit guess,",
         "unwrapping); file = `read_bvh(path)` vs gzip + the package on the same `.bvh.gz`.",
         "",
-        "| corpus | files | frames | rounds | text: mocapnet s | text: bvh s | text speed-up "
-        "| file: mocapnet s | file: bvh s | file speed-up | max abs diff |",
-        "|---|---|---|---|---|---|---|---|---|---|---|",
+        "| corpus | files | frames | reader | text: CPU s | text: speed-up vs `bvh` | file: CPU s | file: speed-up |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     for name, r in results.items():
-        lines.append(
-            f"| {name} | {r['files']} | {r['frames']} | {r['rounds']} | {r['text_mocapnet_cpu_s']} | "
-            f"{r['text_bvh_package_cpu_s']} | {r['text_speedup']}× | {r['file_mocapnet_cpu_s']} | "
-            f"{r['file_bvh_package_cpu_s']} | {r['file_speedup']}× | {r['max_abs_diff']:.1e} |"
-        )
+        for reader, seconds in r["text_cpu_s"].items():
+            file_s = r["file_cpu_s"].get(reader, "")
+            speedup = r["text_speedup_vs_bvh_package"][reader]
+            file_speedup = {"mocapnet": f"{r['file_speedup']}×", "bvh package": "1.0×"}.get(reader, "")
+            lines.append(
+                f"| {name} | {r['files']} | {r['frames']} | {reader} | {seconds} | {speedup}× | {file_s} | "
+                f"{file_speedup} |"
+            )
+    lines += [
+        "",
+        f"Values: max abs difference to the `bvh` package {max(r['max_abs_diff'] for r in results.values()):.1e} "
+        "(mocapnet without unwrapping). The hierarchy cache keeps the parse of the last 16 distinct HIERARCHY "
+        "sections by content; the no-cache row clears it before every file.",
+    ]
     lines += [
         "",
         f"Synthetic hierarchies (CPU s): parse of a 10,000-joint tree {hierarchy['parse_10k_joint_tree_s']}; "
