@@ -37,8 +37,9 @@ from mocapnet.evaluate.harness import evaluate_angles
 from mocapnet.io.atomic import atomic_output
 from mocapnet.io.c3d import read_c3d
 from mocapnet.methods import MethodContext, build_method
-from mocapnet.methods.knn_angles import AngleSettings, Searcher, fill_angles
+from mocapnet.methods.knn_angles import fill_angles
 from mocapnet.methods.knn_database import cached_database
+from mocapnet.methods.knn_window import Searcher, WindowSettings
 from mocapnet.segments import SEGMENTS
 
 GAP_SECONDS = (1.0, 2.0, 4.0)
@@ -145,7 +146,7 @@ def bench_speed(n_clips: int) -> dict:
     t0 = time.perf_counter()
     db = cached_database("bandai2")
     load_s = time.perf_counter() - t0
-    searcher = Searcher(db)
+    searcher = Searcher(db.points, db.clip, db.describe())
     corpus = load_corpus("bandai1", progress=False)
     long = [m for m in corpus.motions if m.duration >= max(TIMING_GAPS) + 2.5]
     clips = [long[i] for i in np.linspace(0, len(long) - 1, min(n_clips, len(long))).round().astype(int)]
@@ -156,7 +157,7 @@ def bench_speed(n_clips: int) -> dict:
             noisy, mask = corrupt_motion(
                 m, corruption, np.random.default_rng(seed_for("bandai1", m.name, 0, corruption))
             )
-            _, stats = fill_angles(m.with_channels(noisy), mask, db, AngleSettings(), (), searcher)
+            _, stats = fill_angles(m.with_channels(noisy), mask, db, WindowSettings(), (), searcher)
             frames = int(mask.any(axis=1).sum())
             points.append({"gap_s": s, "cpu_s": stats.total_s, "search_s": stats.search_s, "frames": frames})
     return {"database": db.describe(), "load_s": load_s, "clips": len(clips), "points": points}
@@ -223,7 +224,8 @@ def markdown(report: dict) -> str:
         f"{report['repeats']} repeat(s); database bandai2 ({speed['database']}; for bandai2 fold 0 only its "
         "training folds 2-4, for bandai1 all of it). Metrics of PROTOCOL.md: `pos_err_cm` (whole body, all "
         "frames), `angle_err_deg` (all frames, scored channels), `gap_err_deg` (missing samples). Ratios to lerp.",
-        f"- knn settings: {AngleSettings()} (k, shift_s, near_gain, speed chosen on bandai2 fold 1 clips).",
+        f"- knn settings (BVH): {WindowSettings()}, chosen on bandai2 fold-1 clips (database without fold 1, "
+        "and without the clip's content label to mimic motion the database lacks).",
         "",
         "## Done when (issue 12)",
         "",

@@ -34,19 +34,16 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from mocapnet.methods import knn_database  # a module import: knn_database and knn import each other
 from mocapnet.methods.baselines import lerp_fill
-from mocapnet.methods.knn import _runs, blend_weight, edge_seconds
+from mocapnet.methods.knn import _runs, edge_seconds
+from mocapnet.methods.knn_window import _KERNEL_EPS2, FillStats, Searcher, WindowSettings, fill_run
 from mocapnet.methods.registry import MethodContext, register
 from mocapnet.motion import Motion, Skeleton
-
-_KERNEL_EPS2 = 1e-6  # cm², ε² of the kernel weight 1 / (d² + ε²)
-_ROW_BLOCK = 16  # query frames per block (bounds memory to about 2 · 16 · N floats)
 
 
 def wrap(deg: np.ndarray) -> np.ndarray:
@@ -95,107 +92,11 @@ def hop_distances(skeleton: Skeleton, joints: Iterable[int]) -> np.ndarray:
     return dist
 
 
-@dataclass
-class FillStats:
-    """What ``fill_angles`` did: gaps (= windows searched), CPU seconds (``time.process_time``) in the
-    search and in all, and per gap the neighbours' RMS feature distance per point (cm)."""
-
-    gaps: int = 0
-    search_s: float = 0.0
-    total_s: float = 0.0
-    distance: list[float] = field(default_factory=list)
-
-
-class Searcher:
-    """Nearest *windows* of a ``SkeletonDatabase`` (module docstring, step 2): brute force over every
-    ``step``-th start frame in float32, then the starts around the best ``shortlist · k`` of them are
-    re-ranked exactly in float64 (so an exact match is found at distance 0)."""
-
-    def __init__(self, db: knn_database.SkeletonDatabase, step: int = 3, shortlist: int = 4):
-        self.db = db
-        self.step = step
-        self.shortlist = shortlist
-        pts = db.points.astype(np.float32)
-        # [3P + P, N]: coordinates and squared norms per point, so one product gives -2 q·x + |x|².
-        self.table = np.concatenate([pts.reshape(len(pts), -1), (pts**2).sum(-1)], axis=1).T
-        self._coarse: dict[int, np.ndarray] = {}
-        starts = np.flatnonzero(np.diff(db.clip, prepend=-1) != 0)
-        sizes = np.diff(np.append(starts, len(db.clip)))
-        self.last = np.repeat(np.append(starts[1:], len(db.clip)) - 1, sizes)  # [N]: last frame of each one's clip
-
-    def profiles(self, feats: np.ndarray, weights: np.ndarray, step: int) -> np.ndarray:
-        """Weighted squared distances ``[F, N / step]`` (cm²) from query poses ``feats [F, P, 3]`` (cm) with
-        point weights ``[F, P]`` to every ``step``-th database frame."""
-        if step not in self._coarse:
-            self._coarse[step] = np.ascontiguousarray(self.table[:, ::step])
-        f = feats.astype(np.float32)
-        w = weights.astype(np.float32)
-        lhs = np.concatenate([(-2.0 * f * w[..., None]).reshape(len(f), -1), w], axis=1)
-        out = lhs @ self._coarse[step]
-        out += (w * (f**2).sum(-1)).sum(-1, keepdims=True)
-        return out
-
-    def windows(
-        self, feats: np.ndarray, weights: np.ndarray, offsets: np.ndarray, length: int, allowed: np.ndarray, k: int
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """The ``k`` database windows of ``length`` frames nearest to the query window.
-
-        ``feats [F, P, 3]`` (cm) and ``weights [F, P]``: the query's poses at frames ``offsets [F]`` of its
-        window (multiples of a common stride). A database window starting at frame i is compared pose by
-        pose with frames ``i + offsets``; it must lie in one allowed clip (``allowed [N]``). Returns squared
-        distances ``[k]`` (cm², ascending) and start frames ``[k]``."""
-        n_all = self.table.shape[1]
-        valid = allowed & (self.last >= np.arange(n_all) + length - 1)
-        stride = int(np.gcd.reduce(offsets)) if offsets.any() else 1
-        step = max(s for s in range(1, self.step + 1) if stride % s == 0)
-        coarse_valid = valid[::step]
-        k = min(k, int(valid.sum()))
-        if k == 0 or not coarse_valid.any():
-            raise ValueError(f"knn database {self.db.describe()}: no clip of {length} frames left to search")
-        n = len(coarse_valid)
-        total = np.zeros(n, dtype=np.float32)
-        for block in np.array_split(np.arange(len(offsets)), -(-len(offsets) // _ROW_BLOCK)):
-            prof = self.profiles(feats[block], weights[block], step)
-            for row, off in zip(prof, offsets[block] // step):
-                total[: n - off] += row[off:]
-        total[~coarse_valid] = np.inf
-        wide = min(self.shortlist * k, int(coarse_valid.sum()))
-        coarse = np.argpartition(total, wide - 1)[:wide]
-        # Each full-rate start belongs to the block of exactly one coarse start (no duplicates).
-        idx = (coarse[:, None] * step + np.arange(-(step // 2), step - step // 2)).ravel()
-        idx = idx[(idx >= 0) & (idx < n_all)]
-        idx = idx[valid[idx]]
-        d = np.zeros(len(idx))
-        for f, off in enumerate(offsets):
-            diff = self.db.points[idx + off].astype(np.float64) - feats[f]
-            d += ((diff**2).sum(-1) * weights[f]).sum(-1)
-        order = np.argsort(d)[:k]
-        return d[order], idx[order]
-
-
-@dataclass(frozen=True)
-class AngleSettings:
-    """Options of ``fill_angles`` (module docstring): neighbours ``k``, window margin ``margin_s`` (s)
-    observed on each side of the gap, weight gain of points near the gap ``near_gain``, blend speed
-    ``speed`` (degrees per second; None: no blend, the kNN estimate as is), ``offset`` (continuity)
-    correction on/off, query pose rate ``query_hz``, and ``distance_gain`` (degrees per cm): the neighbours'
-    RMS feature distance per point times this is added (in quadrature) to their spread, so motion unlike
-    anything in the database falls back to interpolation."""
-
-    k: int = 16
-    margin_s: float = 0.3
-    near_gain: float = 2.0
-    speed: float | None = 60.0
-    offset: bool = True
-    query_hz: float = 10.0
-    distance_gain: float = 0.0
-
-
 def fill_angles(
     motion: Motion,
     mask: np.ndarray,
     db: knn_database.SkeletonDatabase,
-    settings: AngleSettings = AngleSettings(),
+    settings: WindowSettings | None = None,
     exclude: Iterable[str] = (),
     searcher: Searcher | None = None,
 ) -> tuple[np.ndarray, FillStats]:
@@ -204,9 +105,10 @@ def fill_angles(
 
     Raises ValueError naming the motion when its skeleton does not match the database's."""
     t_start = time.process_time()
+    settings = settings or WindowSettings()
     sk = motion.skeleton
     db.check(sk, motion.name)
-    searcher = searcher or Searcher(db)
+    searcher = searcher or Searcher(db.points, db.clip, db.describe())
     stats = FillStats()
     base = lerp_fill(motion.channels, mask)
     out = base.copy()
@@ -243,52 +145,17 @@ def fill_angles(
         for u, c in enumerate(scored_cols[unknown]):
             near = base[span, c][:, None] + wrap(traj[:, :, u] - base[span, c][:, None])  # [S, k] degrees
             for c0, c1 in _runs(mask[lo : hi + 1, c]):
-                _fill_run(out[:, c], base[:, c], near, kernel, seconds[:, c], lo, (c0 + lo, c1 + lo), rms, settings)
+                fill_run(out[:, c], base[:, c], near, kernel, seconds[:, c], lo, (c0 + lo, c1 + lo), rms, settings)
     out[~mask] = motion.channels[~mask]
     stats.total_s = time.process_time() - t_start
     return out, stats
 
 
-def _fill_run(
-    out: np.ndarray,
-    base: np.ndarray,
-    near: np.ndarray,
-    kernel: np.ndarray,
-    seconds: np.ndarray,
-    lo: int,
-    run: tuple[int, int],
-    rms: float,
-    settings: AngleSettings,
-) -> None:
-    """Fill one channel's missing run ``[c0, c1)`` of ``out [T]`` (degrees, in place) from the neighbours'
-    values ``near [S, k]`` at frames ``lo, lo + 1, …`` (kernel weights ``[k]``): with ``offset``, each
-    neighbour contributes its deviation from its own straight line between the run's edge frames, added
-    to ``base`` (the interpolation); the weighted spread of the contributions and the neighbours' distance
-    ``rms`` (cm) set the blend weight. ``seconds [T]``: distance to the nearest observed frame."""
-    c0, c1 = run
-    t = np.arange(c0, c1)
-    vals = near[t - lo]
-    edges = [f for f in (c0 - 1, c1) if 0 <= f < len(out)] if settings.offset else []
-    if edges:
-        at = near[np.array(edges) - lo]  # [E, k]
-        line = at[0] if len(edges) == 1 else at[0] + (at[1] - at[0]) * ((t - edges[0]) / (edges[1] - edges[0]))[:, None]
-        contrib = vals - line + base[t][:, None]
-    else:
-        contrib = vals
-    est = contrib @ kernel
-    spread = np.sqrt(((contrib - est[:, None]) ** 2) @ kernel)
-    if settings.speed is None:
-        out[t] = est
-        return
-    beta = blend_weight(np.hypot(spread, settings.distance_gain * rms), seconds[t], settings.speed)
-    out[t] = base[t] + beta * (est - base[t])
-
-
 def angle_filler(
-    db: knn_database.SkeletonDatabase, settings: AngleSettings, exclude: Iterable[str] = ()
+    db: knn_database.SkeletonDatabase, settings: WindowSettings, exclude: Iterable[str] = ()
 ) -> Callable[[Motion, np.ndarray], np.ndarray]:
     """``clean(noisy, mask) -> [T, C]`` for the harness, with one searcher shared by every call."""
-    searcher = Searcher(db)
+    searcher = Searcher(db.points, db.clip, db.describe())
     skip = tuple(exclude)
 
     def clean(noisy: Motion, mask: np.ndarray) -> np.ndarray:
@@ -312,7 +179,7 @@ def _knn_angles(
     largest corpus of the input's skeleton under the data root, or else ``context.train``. When the
     database is the corpus being scored, only its training clips (``context.train``) are used; the clip
     being filled (same name) is always left out. The database is built on the first call."""
-    settings = AngleSettings(**options)  # an unknown option is a TypeError, reported by build_method
+    settings = WindowSettings(**options)  # an unknown option is a TypeError, reported by build_method
     built: dict[tuple, Callable[[Motion, np.ndarray], np.ndarray]] = {}
 
     def clean(noisy: Motion, mask: np.ndarray) -> np.ndarray:
