@@ -164,7 +164,7 @@ def load_c3d(path: str | os.PathLike, *, allow_truncated: bool = False) -> C3DCo
         )
         if not allow_truncated or layout.frames_present == 0:
             raise MocapFileError(msg + ("" if allow_truncated else " (--allow-truncated reads the frames present)"))
-        warnings.warn(msg + "; reading those", TruncatedC3DWarning, stacklevel=2)
+        warnings.warn(msg + "; reading those", TruncatedC3DWarning, stacklevel=3)
     try:
         xyz, residuals, analogs = _read_ezc3d(path)
         reader = "ezc3d"

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from mocapnet.io import MocapFileError, read_c3d, write_c3d
-from mocapnet.io.c3d import TruncatedC3DWarning
+from mocapnet.io.c3d import READERS, TruncatedC3DWarning
 from mocapnet.io.c3d_raw import read_layout
 from tests.conftest import SAMPLE_C3D, SAMPLE_C3D_NAN
 
@@ -136,6 +136,7 @@ def test_every_shared_c3d_loads_or_fails_clearly(shared):
         loaded[f.name] = m.reader
         assert m.points.shape[:2] == m.visible.shape and m.fps > 0
         assert not np.isnan(m.points[m.visible]).any()
+    assert set(loaded.values()) == set(READERS)
     fallback = {"sgi_int.c3d", "sgi_real.c3d", "c3d.org__sample13__Dance.c3d", "golfswing.c3d"}
     assert {name for name, reader in loaded.items() if reader == "c3d"} == fallback
     assert max(failed.values()) < 15.0, failed
