@@ -125,6 +125,8 @@ def fill_angles(
     margin = max(1, int(round(settings.margin_s * motion.fps)))
     seconds = edge_seconds(mask, motion.fps)
     n_t = motion.n_frames
+    complete = ~smask.any(axis=1)
+    own = Searcher(feats, np.zeros(n_t, dtype=int), f"{motion.name} itself") if settings.own else None
     for a, b in _runs(smask.any(axis=1)):
         stats.gaps += 1
         unknown = np.flatnonzero(smask[a:b].any(axis=0))  # indices into scored_cols
@@ -134,14 +136,23 @@ def fill_angles(
         w = weights[grid] * gain
         t0 = time.process_time()
         d2, starts = searcher.windows(feats[grid], w, grid - w0, w1 - w0, allowed, settings.k)
+        lo, hi = max(a - 1, 0), min(b, n_t - 1)
+        span = np.arange(lo, hi + 1)
+        traj = db.channels[starts[None, :] + (span - w0)[:, None]][:, :, unknown]  # [S, k, U]
+        if own is not None and (complete.sum() >= w1 - w0):
+            try:
+                d2_own, own_starts = own.windows(feats[grid], w, grid - w0, w1 - w0, complete, settings.k)
+            except ValueError:  # no complete stretch of the clip as long as the window
+                d2_own, own_starts = np.zeros(0), np.zeros(0, dtype=int)
+            own_traj = motion.channels[own_starts[None, :] + (span - w0)[:, None]][:, :, scored_cols[unknown]]
+            best = np.argsort(np.concatenate([d2, d2_own]))[: settings.k]
+            d2 = np.concatenate([d2, d2_own])[best]
+            traj = np.concatenate([traj, own_traj], axis=1)[:, best]
         stats.search_s += time.process_time() - t0
         kernel = 1.0 / (d2 + _KERNEL_EPS2)
         kernel /= kernel.sum()
         rms = float(np.sqrt((kernel * d2).sum() / w.sum()))  # cm per weighted point and frame
         stats.distance.append(rms)
-        lo, hi = max(a - 1, 0), min(b, n_t - 1)
-        span = np.arange(lo, hi + 1)
-        traj = db.channels[starts[None, :] + (span - w0)[:, None]][:, :, unknown]  # [S, k, U]
         for u, c in enumerate(scored_cols[unknown]):
             near = base[span, c][:, None] + wrap(traj[:, :, u] - base[span, c][:, None])  # [S, k] degrees
             for c0, c1 in _runs(mask[lo : hi + 1, c]):

@@ -65,10 +65,12 @@ class Searcher:
 
         ``feats [F, P, 3]`` (cm) and ``weights [F, P]``: the query's poses at frames ``offsets [F]`` of its
         window (multiples of a common stride). A database window starting at frame i is compared pose by
-        pose with frames ``i + offsets``; it must lie in one allowed clip (``allowed [N]``). Returns squared
-        distances ``[k]`` (cm², ascending) and start frames ``[k]``."""
+        pose with frames ``i + offsets``; it must lie in one clip with every frame allowed (``allowed [N]``).
+        Returns squared distances ``[k]`` (cm², ascending) and start frames ``[k]``."""
         n_all = self.table.shape[1]
-        valid = allowed & (self.last >= np.arange(n_all) + length - 1)
+        start = np.arange(n_all)
+        barred = np.concatenate([[0], np.cumsum(~allowed)])  # a window is valid if none of its frames is barred
+        valid = (self.last >= start + length - 1) & (barred[np.minimum(start + length, n_all)] == barred[start])
         stride = int(np.gcd.reduce(offsets)) if offsets.any() else 1
         step = max(s for s in range(1, self.step + 1) if stride % s == 0)
         coarse_valid = valid[::step]
@@ -103,7 +105,8 @@ class WindowSettings:
     ``speed`` (degrees or cm per second; None: no blend, the kNN estimate as is), ``offset`` (continuity)
     correction on/off, query pose rate ``query_hz``, and ``distance_gain`` (degrees or cm per cm): the
     neighbours' RMS feature distance per point times this is added (in quadrature) to their spread, so
-    motion unlike anything in the database falls back to interpolation."""
+    motion unlike anything in the database falls back to interpolation; ``own``: windows of the input's own
+    fully observed frames compete with the database's (a repeated gesture, a gait cycle)."""
 
     k: int = 16
     margin_s: float = 0.3
@@ -112,6 +115,7 @@ class WindowSettings:
     offset: bool = True
     query_hz: float = 10.0
     distance_gain: float = 0.0
+    own: bool = True
 
 
 def fill_run(
