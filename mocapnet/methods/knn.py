@@ -388,6 +388,18 @@ class MotionDatabase:
         where = self.source or f"{len(self.clip_names)} clip(s) {list(self.clip_names[:3])}"
         return f"database {where} ({len(self.labels)} markers)"
 
+    def checked_columns(self, markers: Markers) -> np.ndarray:
+        """``columns``, raising ValueError naming the file and the database when the database lacks a point
+        that has missing samples."""
+        cols = self.columns(markers)
+        lacking = [markers.labels[i] for i in np.flatnonzero((cols < 0) & ~markers.visible.all(axis=0))]
+        if lacking:
+            raise ValueError(
+                f"{markers.name or 'markers'}: {self.describe()} does not contain marker(s) {lacking} of this file; "
+                f"the database's markers are {list(self.labels)}, the file's {[bare_label(x) for x in markers.labels]}"
+            )
+        return cols
+
     def columns(self, markers: Markers) -> np.ndarray:
         """Database column of each of ``markers``' points (``[M]`` int, -1 where the database lacks it)."""
         column = {lab: i for i, lab in enumerate(self.labels)}
@@ -596,14 +608,8 @@ def fill_gaps(
     """
     report = FillReport(spread=np.full(markers.visible.shape, np.nan))
     name = markers.name or "markers"
-    cols = database.columns(markers)
+    cols = database.checked_columns(markers)
     todo = ~markers.visible & (cols >= 0)[None]
-    lacking = [markers.labels[i] for i in np.flatnonzero((cols < 0) & ~markers.visible.all(axis=0))]
-    if lacking:
-        raise ValueError(
-            f"{name}: {database.describe()} does not contain marker(s) {lacking} of this file; the database's "
-            f"markers are {list(database.labels)}, the file's {[bare_label(lab) for lab in markers.labels]}"
-        )
     if max_gap_s is not None:
         limit = int(round(max_gap_s * markers.fps))
         for m in np.flatnonzero(todo.any(axis=0)):
@@ -800,33 +806,42 @@ def blend_points(
 @register(
     "knn",
     "points",
-    help="kNN poses from a clean database + energy minimisation, offset-corrected, blended with interpolation; "
-    "options k, levels, reliable (all|paper|A+B), database=<folder>, max_gap_s, schedule, offset, speed, base, up",
+    help="kNN from a clean database (default: nearest windows; search=energy: the paper's per-frame kd-tree + "
+    "energy minimisation), offset-corrected, blended with interpolation; options k, database=<folder>, own, "
+    "speed, offset, margin_s, near_gain, query_hz, distance_gain, search; energy: levels, reliable, max_gap_s, "
+    "schedule, threshold, base; up",
 )
 def _knn(
     context: MethodContext,
     k: int = 16,
+    database: str | None = None,
+    search: str = "window",
+    own: bool = True,
+    offset: bool = True,
+    speed: float | None = 150.0,
+    up: str = "auto",
     levels: int | None = None,
     reliable: str | None = None,
-    database: str | None = None,
     max_gap_s: float | None = None,
     schedule: float = 0.25,
     threshold: float = 0.01,
-    offset: bool = True,
-    speed: float | None = 150.0,
     base: str = "lerp",
-    own: bool = True,
-    up: str = "auto",
+    **window: float,
 ) -> Callable[[Markers], np.ndarray]:
     """``knn`` for point data. The database is ``database`` (folder(s) of C3D files, joined with
     ``os.pathsep``) when given, else ``context.train`` (the clip being cleaned, same ``name``, is left out),
-    else the take's own frames (rows where the markers to fill are visible). ``clean.database`` says which.
-    ``own``: the take's own frames join a given database too (its gap frames are invalid rows, so only
-    observed poses are found). Defaults (k 16, speed 150 cm/s, own) were chosen on the Plug-in-Gait tennis
-    serve (database: the pyCGM trial), not on the 41-marker set the benchmark reports. The fill is blended with ``base``
-    interpolation by ``blend_points`` (``speed`` cm/s; None: no blend).
-    Samples ``fill_gaps`` leaves NaN (gaps over ``max_gap_s``, gaps without a visible reliable point) are
-    filled by linear interpolation with a warning."""
+    else the take's own frames. ``own``: the take's own fully observed frames join a given database too.
+    ``clean.database`` says which. ``search="window"`` (default): ``knn_window.fill_markers`` (options
+    ``margin_s``, ``near_gain``, ``query_hz``, ``distance_gain`` of ``WindowSettings``); ``"energy"``: the
+    paper's ``fill_gaps``, blended with ``base`` interpolation by ``blend_points``, samples it leaves NaN
+    filled linearly with a warning. ``speed`` in cm/s (None: no blend). Defaults (k 16, speed 150 cm/s,
+    own) were chosen on the Plug-in-Gait tennis serve (database: the pyCGM trial), not on the 41-marker
+    set the benchmark reports."""
+    from mocapnet.methods.knn_window import WindowSettings, fill_markers
+
+    if search not in ("window", "energy"):
+        raise ValueError(f"knn: search must be window or energy, got {search!r}")
+    settings = WindowSettings(k=k, speed=speed, offset=offset, own=own, **window)
     fixed: MotionDatabase | None = None
     clips: list[Markers] = []
     if database is not None:
@@ -837,13 +852,16 @@ def _knn(
         fixed = MotionDatabase.from_markers(clips, levels, up=up, source=context.corpus or "training clips")
 
     def clean(noisy: Markers) -> np.ndarray:
-        if fixed is None or own:
-            take = replace(noisy, name=f"{noisy.name}, own frames")  # not left out as the clip being cleaned
-            source = f"{fixed.source} + the take's own frames" if fixed else f"{noisy.name or 'the take'}'s own frames"
-            db = MotionDatabase.from_markers(clips + [take], levels, up=up, source=source)
+        take = replace(noisy, name=f"{noisy.name}, own frames")  # not left out as the clip being cleaned
+        if fixed is None:
+            db = MotionDatabase.from_markers([take], levels, up=up, source=f"{noisy.name or 'the take'}'s own frames")
+        elif own and search == "energy":
+            db = MotionDatabase.from_markers(clips + [take], levels, up=up, source=f"{fixed.source} + own frames")
         else:
             db = fixed
-        clean.database = db.describe()  # type: ignore[attr-defined]
+        clean.database = db.describe() + (" + the take's own frames" if own and fixed and search == "window" else "")  # type: ignore[attr-defined]
+        if search == "window":
+            return fill_markers(noisy, db, replace(settings, own=own and fixed is not None))[0]
         filled, report = fill_gaps(
             noisy,
             db,

@@ -41,7 +41,15 @@ import numpy as np
 from mocapnet.methods import knn_database  # a module import: knn_database and knn import each other
 from mocapnet.methods.baselines import lerp_fill
 from mocapnet.methods.knn import _runs, edge_seconds
-from mocapnet.methods.knn_window import _KERNEL_EPS2, FillStats, Searcher, WindowSettings, fill_run
+from mocapnet.methods.knn_window import (
+    _KERNEL_EPS2,
+    FillStats,
+    Searcher,
+    WindowSettings,
+    fill_run,
+    gather,
+    neighbour_windows,
+)
 from mocapnet.methods.registry import MethodContext, register
 from mocapnet.motion import Motion, Skeleton
 
@@ -135,25 +143,19 @@ def fill_angles(
         grid = np.arange(w0, w1, stride)
         w = weights[grid] * gain
         t0 = time.process_time()
-        d2, starts = searcher.windows(feats[grid], w, grid - w0, w1 - w0, allowed, settings.k)
+        d2, starts, from_own = neighbour_windows(
+            searcher, own, feats[grid], w, grid - w0, w1 - w0, allowed, complete, settings.k
+        )
+        stats.search_s += time.process_time() - t0
         lo, hi = max(a - 1, 0), min(b, n_t - 1)
         span = np.arange(lo, hi + 1)
-        traj = db.channels[starts[None, :] + (span - w0)[:, None]][:, :, unknown]  # [S, k, U]
-        if own is not None and (complete.sum() >= w1 - w0):
-            try:
-                d2_own, own_starts = own.windows(feats[grid], w, grid - w0, w1 - w0, complete, settings.k)
-            except ValueError:  # no complete stretch of the clip as long as the window
-                d2_own, own_starts = np.zeros(0), np.zeros(0, dtype=int)
-            own_traj = motion.channels[own_starts[None, :] + (span - w0)[:, None]][:, :, scored_cols[unknown]]
-            best = np.argsort(np.concatenate([d2, d2_own]))[: settings.k]
-            d2 = np.concatenate([d2, d2_own])[best]
-            traj = np.concatenate([traj, own_traj], axis=1)[:, best]
-        stats.search_s += time.process_time() - t0
+        cols = scored_cols[unknown]
+        traj = gather(db.channels[:, unknown], motion.channels[:, cols], starts, from_own, span - w0)  # [S, k, U]
         kernel = 1.0 / (d2 + _KERNEL_EPS2)
         kernel /= kernel.sum()
         rms = float(np.sqrt((kernel * d2).sum() / w.sum()))  # cm per weighted point and frame
         stats.distance.append(rms)
-        for u, c in enumerate(scored_cols[unknown]):
+        for u, c in enumerate(cols):
             near = base[span, c][:, None] + wrap(traj[:, :, u] - base[span, c][:, None])  # [S, k] degrees
             for c0, c1 in _runs(mask[lo : hi + 1, c]):
                 fill_run(out[:, c], base[:, c], near, kernel, seconds[:, c], lo, (c0 + lo, c1 + lo), rms, settings)

@@ -204,7 +204,7 @@ def test_gaps_over_max_length_left_nan_or_interpolated_with_warning(walk, databa
     assert np.isnan(out[~noisy.visible]).all()
     assert {u[0] for u in report.unfilled} == {"LUPA", "LELB", "LFRM", "LWRA", "LWRB", "LFIN"}
     other = synthetic_walk(phase=1.0, swing=0.3, name="other")
-    method = build_method("knn:max_gap_s=0.5", MethodContext(train=[other]), space="points")
+    method = build_method("knn:search=energy,max_gap_s=0.5", MethodContext(train=[other]), space="points")
     with pytest.warns(UserWarning) as caught:
         filled = method.clean(noisy)
     messages = [str(w.message) for w in caught]
@@ -225,9 +225,13 @@ def test_registered_methods_build_and_run(walk) -> None:
         out = method.clean(noisy)
         assert out.shape == walk.points.shape and np.isfinite(out).all()
         assert np.array_equal(out[noisy.visible], walk.points[noisy.visible])
-    # The clip named like the input is left out of the database: the fill is not a copy of the truth.
-    err = np.linalg.norm(knn.clean(noisy) - walk.points, axis=-1)[~noisy.visible].mean()
+    # The clip named like the input is left out of the database: the fill is not a copy of the truth...
+    alone = build_method("knn:k=4,own=False", MethodContext(train=train), space="points")
+    err = np.linalg.norm(alone.clean(noisy) - walk.points, axis=-1)[~noisy.visible].mean()
     assert 1e-3 < err < 20.0
+    # ...but the take's own observed frames are fair game: this walk repeats exactly every second.
+    err = np.linalg.norm(knn.clean(noisy) - walk.points, axis=-1)[~noisy.visible].mean()
+    assert err < 1e-6 and "own frames" in knn.clean.database
 
 
 def test_knn_on_joint_positions_of_a_motion() -> None:
