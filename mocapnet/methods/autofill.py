@@ -181,10 +181,22 @@ class _Candidates:
         """The candidate ``name``'s fill ``[stop - start, 3]`` of one gap and facts about it, or None and
         ``{"reason": ...}``."""
         if name == "rigid":
-            got = rigid_fill_gap(self.points, self.visible, self.spread(), marker, start, stop, **self.rigid_options)
+            one_edge = (
+                len([r for r in (start - 1, stop) if 0 <= r < len(self.visible) and self.visible[r, marker]]) == 1
+            )
+            gate = self.max_residual_cm[0 if one_edge else 1]
+            got = rigid_fill_gap(
+                self.points,
+                self.visible,
+                self.spread(),
+                marker,
+                start,
+                stop,
+                max_residual_cm=gate,
+                **self.rigid_options,
+            )
             if got is None:
                 return None, {"reason": "fewer than 3 rigid partners visible through the gap"}
-            gate = self.max_residual_cm[got.edges - 1]
             if got.residual_cm > gate:
                 return None, {"reason": f"rigid partners deform by {got.residual_cm:.2f} cm RMS > {gate:g} cm"}
             labels = [self.markers.labels[p] for p in got.partners]

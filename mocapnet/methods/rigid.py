@@ -6,7 +6,7 @@ For a gap ``[a, b)`` of marker ``i`` (frames ``a .. b-1`` missing):
 1. **Partners.** Markers visible in every frame from ``a - 1`` to ``b`` (the gap and the measured frames at
    its edges) whose distance to ``i`` keeps a standard deviation of at most ``max_std_cm`` over the frames
    where both are measured (:func:`distance_spread`). The ``max_partners`` most rigid are used; at least
-   ``min_partners`` (3) that are not collinear (their second singular value at least ``min_spread_cm``).
+   ``min_partners`` (3) that are not collinear (their second singular value at least 1 cm).
 2. **Transform.** For each edge frame ``r`` (``a - 1`` and/or ``b``), the rigid transform taking the
    partners' configuration at ``r`` to their configuration at each gap frame ``t`` (weighted Kabsch:
    least-squares rotation via SVD, reflection excluded) carries ``i``'s measured position at ``r`` to frame ``t``.
@@ -30,6 +30,7 @@ from mocapnet.motion import Markers
 
 _SPREAD_FRAMES = 1000  # at most this many evenly spaced frames enter the distance spread
 _MIN_TOGETHER = 10  # frames two markers must share for their distance spread to count
+_MIN_SPREAD_CM = 1.0  # partners whose second singular value at an edge is smaller are collinear
 _WEIGHT_FLOOR_CM = 0.5  # partner weights 1 / (spread² + floor²): no partner dominates on noise alone
 
 
@@ -131,6 +132,29 @@ def rigid_reach(
     return int(np.sort(first_lost)[-3])
 
 
+def _carry(
+    points: np.ndarray, marker: int, partners: np.ndarray, weights: np.ndarray, edges: list[int], start: int, stop: int
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """Carry ``marker`` from each measured edge with ``partners`` (weighted Kabsch per gap frame) and blend.
+    Returns the track ``[L, 3]`` and each partner's RMS deviation from its carried reference position ``[K]``
+    (cm, the worse of the edges), or None when the partners are collinear at an edge."""
+    tracks, deviations = [], []
+    frames = points[start:stop][:, partners]  # [L, K, 3]
+    for r in edges:
+        ref = points[r, partners]
+        sv = np.linalg.svd(ref - ref.mean(axis=0), compute_uv=False)
+        if sv[1] < _MIN_SPREAD_CM:
+            return None
+        rot, shift = kabsch(ref, frames, weights)
+        tracks.append(np.einsum("lij,j->li", rot, points[r, marker]) + shift)
+        carried = np.einsum("lij,kj->lki", rot, ref) + shift[:, None]
+        deviations.append(np.sqrt(np.mean(np.sum((carried - frames) ** 2, axis=-1), axis=0)))
+    if len(tracks) == 1:
+        return tracks[0], deviations[0]
+    w = (np.arange(start, stop) - start + 1) / (stop - start + 1)
+    return (1.0 - w)[:, None] * tracks[0] + w[:, None] * tracks[1], np.maximum(*deviations)
+
+
 def rigid_fill_gap(
     points: np.ndarray,
     visible: np.ndarray,
@@ -141,38 +165,31 @@ def rigid_fill_gap(
     max_std_cm: float = 2.0,
     max_partners: int = 6,
     min_partners: int = 3,
-    min_spread_cm: float = 1.0,
+    max_residual_cm: float = np.inf,
 ) -> RigidFill | None:
     """Rigid-body fill of ``points[start:stop, marker]`` (module docstring) from the edges ``start - 1`` and
     ``stop`` where the marker is measured (one edge: carried from it alone; a part of a longer gap may be
     filled this way); ``points [T, M, 3]`` cm, ``visible [T, M]``, ``spread [M, M]`` from
-    :func:`distance_spread`. None when no edge is measured or fewer than ``min_partners`` non-collinear rigid
+    :func:`distance_spread`. While the partners' RMS deviation from their rigid configuration exceeds
+    ``max_residual_cm`` and more than ``min_partners`` remain, the partner that deviates most is dropped and
+    the fit repeated. None when no edge is measured or fewer than ``min_partners`` non-collinear rigid
     partners are visible throughout."""
     edges = _measured_edges(visible, marker, start, stop)
     if not edges:
         return None
     partners = rigid_partners(visible, spread, marker, start, stop, max_std_cm, max_partners)
-    if len(partners) < min_partners:
-        return None
-    # Weight each partner by how rigid it stayed: 1 / (spread² + (0.5 cm)²).
-    weights = 1.0 / (spread[marker, partners] ** 2 + _WEIGHT_FLOOR_CM**2)
-    tracks, residuals = [], []
-    frames = points[start:stop][:, partners]  # [L, K, 3]
-    for r in edges:
-        ref = points[r, partners]
-        sv = np.linalg.svd(ref - ref.mean(axis=0), compute_uv=False)
-        if sv[1] < min_spread_cm:
+    while len(partners) >= min_partners:
+        # Weight each partner by how rigid it stayed: 1 / (spread² + (0.5 cm)²).
+        weights = 1.0 / (spread[marker, partners] ** 2 + _WEIGHT_FLOOR_CM**2)
+        got = _carry(points, marker, partners, weights, edges, start, stop)
+        if got is None:
             return None
-        rot, shift = kabsch(ref, frames, weights)
-        tracks.append(np.einsum("lij,j->li", rot, points[r, marker]) + shift)
-        carried = np.einsum("lij,kj->lki", rot, ref) + shift[:, None]
-        residuals.append(np.sqrt(np.mean(np.sum((carried - frames) ** 2, axis=-1))))
-    if len(tracks) == 1:
-        track = tracks[0]
-    else:
-        w = (np.arange(start, stop) - start + 1) / (stop - start + 1)
-        track = (1.0 - w)[:, None] * tracks[0] + w[:, None] * tracks[1]
-    return RigidFill(track, tuple(int(p) for p in partners), float(max(residuals)), len(edges))
+        track, deviation = got
+        residual = float(np.sqrt(np.mean(deviation**2)))
+        if residual <= max_residual_cm or len(partners) == min_partners:
+            return RigidFill(track, tuple(int(p) for p in partners), residual, len(edges))
+        partners = np.delete(partners, int(np.argmax(deviation)))
+    return None
 
 
 def rigid_fill(points: np.ndarray, visible: np.ndarray, max_std_cm: float = 2.0, max_partners: int = 6) -> np.ndarray:
