@@ -17,7 +17,9 @@ from collections import deque
 from os import PathLike
 
 import numpy as np
+import scipy.linalg
 import torch
+from scipy.special import expit
 
 from mocapnet.fill import lerp_fill
 from mocapnet.io.atomic import MocapFileError
@@ -152,6 +154,112 @@ def clean_channels(
     return result
 
 
+class _CentreKernel:
+    """EBF's windowed-mode output for the centre frame of a full window, in numpy float32 (the streaming
+    cleaner's steady state: one call per frame, so per-call overhead is what counts).
+
+    Savings over running ``nn.LSTM`` on the window: layer 1's input projection is computed once per frame
+    (``project``) and kept; both directions of a layer step together (one batched product per step); layer 2
+    runs only the steps its centre output depends on (``half + 1`` each way instead of ``2·half + 1``); the
+    encoder, head and filter touch one frame. Same arithmetic as the torch modules (float32 rounding apart).
+    """
+
+    def __init__(self, model: EBF) -> None:
+        lstm = model.blstm.lstm
+
+        def both(name: str, layer: int) -> np.ndarray:
+            fwd, bwd = getattr(lstm, f"{name}_l{layer}"), getattr(lstm, f"{name}_l{layer}_reverse")
+            return np.stack([fwd.detach().numpy(), bwd.detach().numpy()]).astype(np.float32)
+
+        self.wih = [both("weight_ih", layer) for layer in (0, 1)]  # [2, 4H, in]
+        self.whh = [both("weight_hh", layer) for layer in (0, 1)]  # [2, 4H, H]
+        self.bias = [both("bias_ih", layer) + both("bias_hh", layer) for layer in (0, 1)]  # [2, 4H]
+        self.hidden = lstm.hidden_size
+        self.whh_block = [scipy.linalg.block_diag(*w) for w in self.whh]  # [8H, 2H]: both directions at once
+        self.encoder = _dense_layers(model.encoder)
+        self.head = _dense_layers(model.head)
+        hp = model.hparams
+        self.half, self.n_channels, self.n_filter = hp.half, hp.n_channels, model.n_filter
+        self.free, self.has_bias = hp.filter_shape == "free", bool(hp.bias)
+        self.center = model.center.numpy().astype(np.float32)
+        self.scale = model.scale.numpy().astype(np.float32)
+        self.angvel_scale = model.angvel_scale.numpy().astype(np.float32)
+        self.taps_sq = (np.arange(-self.half, self.half + 1, dtype=np.float32) ** 2)[None, :]
+
+    @staticmethod
+    def usable(model: EBF) -> bool:
+        """Whether ``model``'s LSTM has the two layers this kernel computes."""
+        return model.blstm.lstm.num_layers == 2 and model.blstm.stride == 1
+
+    def project(self, scored: np.ndarray, angvel: np.ndarray) -> np.ndarray:
+        """One frame's layer-1 LSTM input projection ``[2, 4H]`` (both directions, biases included) from its
+        scored channels ``[C]`` (degrees) and root angular velocity ``[3]`` (rad/s)."""
+        x = np.clip((np.remainder(scored - self.center + 180.0, 360.0) - 180.0) / self.scale, -8.0, 8.0)
+        w = np.clip(angvel / self.angvel_scale, -8.0, 8.0)
+        code = _run_dense(self.encoder, np.concatenate([x, w]).astype(np.float32))
+        return self.wih[0] @ code + self.bias[0]
+
+    def _steps(self, proj: np.ndarray, layer: int, out: np.ndarray | None) -> np.ndarray:
+        """Run both directions of ``layer`` over ``proj [S, 2, 4H]`` (row s: forward step s, backward step s);
+        writes the hidden states into ``out [S, 2, H]`` when given; returns the last ``[2, H]``.
+
+        One block-diagonal product per step gives both directions' recurrent terms."""
+        hid, whh = self.hidden, self.whh_block[layer]
+        h = np.zeros(2 * hid, dtype=np.float32)
+        c = np.zeros((2, hid), dtype=np.float32)
+        for s in range(proj.shape[0]):
+            gates = (whh @ h).reshape(2, 4 * hid)
+            gates += proj[s]
+            act = expit(gates)
+            c = act[:, hid : 2 * hid] * c + act[:, :hid] * np.tanh(gates[:, 2 * hid : 3 * hid])
+            h = (act[:, 3 * hid :] * np.tanh(c)).reshape(-1)
+            if out is not None:
+                out[s] = h.reshape(2, hid)
+        return h.reshape(2, hid)
+
+    def centre(self, proj: np.ndarray, window: np.ndarray) -> np.ndarray:
+        """Cleaned scored channels ``[C]`` of the centre frame, from the window's layer-1 projections
+        ``[W, 2, 4H]`` (``W = 2·half + 1``) and its scored channels ``[W, C]`` (degrees)."""
+        width, mid = proj.shape[0], self.half
+        seq = np.stack([proj[:, 0], proj[::-1, 1]], axis=1)  # step s: forward frame s, backward frame W-1-s
+        hidden = np.empty((width, 2, self.hidden), dtype=np.float32)
+        self._steps(seq, 0, hidden)
+        layer1 = np.concatenate([hidden[:, 0], hidden[::-1, 1]], axis=1)  # [W, 2H] per frame
+        fwd = layer1[: mid + 1] @ self.wih[1][0].T + self.bias[1][0]
+        bwd = layer1[mid:][::-1] @ self.wih[1][1].T + self.bias[1][1]
+        h = self._steps(np.stack([fwd, bwd], axis=1), 1, None)
+        params = _run_dense(self.head, h.reshape(-1))
+        raw = params[: self.n_filter]
+        if self.free:
+            logits = raw.reshape(self.n_channels, -1)
+        else:
+            logits = -0.5 * self.taps_sq * np.exp(-2.0 * np.clip(raw, -5.0, 5.0))[:, None]
+        weights = np.exp(logits - logits.max(axis=1, keepdims=True))  # [C, K]
+        values = (weights * window.T).sum(axis=1) / weights.sum(axis=1)
+        if self.has_bias:
+            values = values - self.scale * 3.0 * np.tanh(params[self.n_filter :] / 3.0)
+        return values
+
+
+def _dense_layers(seq: torch.nn.Module) -> list[tuple[np.ndarray, np.ndarray, bool]]:
+    """``(weight, bias, tanh after)`` of each Linear of a ``layers.mlp`` (an Identity gives none)."""
+    mods = list(seq) if isinstance(seq, torch.nn.Sequential) else []
+    out = []
+    for i, mod in enumerate(mods):
+        if isinstance(mod, torch.nn.Linear):
+            tanh = i + 1 < len(mods) and isinstance(mods[i + 1], torch.nn.Tanh)
+            out.append((mod.weight.detach().numpy().astype(np.float32), mod.bias.detach().numpy(), tanh))
+    return out
+
+
+def _run_dense(layers: list[tuple[np.ndarray, np.ndarray, bool]], x: np.ndarray) -> np.ndarray:
+    for weight, bias, tanh in layers:
+        x = weight @ x + bias
+        if tanh:
+            x = np.tanh(x)
+    return x
+
+
 class EBFStream:
     """Frame-by-frame EBF cleaning with a fixed lookahead of ``half`` frames (windowed mode).
 
@@ -159,7 +267,8 @@ class EBFStream:
     final, as a list of ``(frame index, cleaned channels [C])``: from frame ``2·half`` on, one per call
     (frame ``t - half``; the first call that completes a window returns frames 0 … half). ``flush()`` returns
     the last ``half`` frames at the end of the stream. The results equal ``clean_channels(...,
-    mode="windowed")`` on the whole clip.
+    mode="windowed")`` on the whole clip. The steady state (one frame per call) runs ``_CentreKernel``; the
+    first window and the flush run the torch modules.
     """
 
     def __init__(self, model: EBF, skeleton: Skeleton, fps: float) -> None:
@@ -171,71 +280,76 @@ class EBFStream:
         self.width = 2 * self.half + 1
         self.idx = scored_index(skeleton)
         self.frames: deque[np.ndarray] = deque(maxlen=self.width)
-        self.scored: deque[torch.Tensor] = deque(maxlen=self.width)
-        self.codes: deque[torch.Tensor] = deque(maxlen=self.width)
+        self.scored: deque[np.ndarray] = deque(maxlen=self.width)  # [C_s] float32
+        self.angvel: deque[np.ndarray] = deque(maxlen=self.width)  # [3] rad/s
+        self.proj: deque[np.ndarray] = deque(maxlen=self.width)  # [2, 4H] (kernel only)
         self.count = 0
         self._prev_rot: np.ndarray | None = None
         self._chain = context_chain(skeleton)
-        self._last_window: tuple[torch.Tensor, torch.Tensor] | None = None
+        self._kernel = _CentreKernel(model) if _CentreKernel.usable(model) else None
 
-    def _encode(self, scored: torch.Tensor, angvel: np.ndarray) -> torch.Tensor:
-        w = torch.as_tensor(angvel, dtype=torch.float32)[None, None]
-        return self.model.encoder(self.model.features(scored[None, None], w))[0, 0]
+    def _add_angvel(self, angvel: np.ndarray) -> None:
+        """Record the angular velocity of the newest frame (and its layer-1 projection for the kernel)."""
+        self.angvel.append(angvel)
+        if self._kernel is not None:
+            self.proj.append(self._kernel.project(self.scored[len(self.angvel) - 1], angvel))
 
-    def _emit(self, positions: list[int], lstm_out: torch.Tensor, window: torch.Tensor) -> list[tuple[int, np.ndarray]]:
-        """Cleaned frames at ``positions`` of the current window (``window [W, C]`` scored channels)."""
+    @torch.inference_mode()
+    def _window(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """LSTM outputs ``[W, 2H]`` and scored channels ``[W, C]`` of the current window (torch modules)."""
+        window = torch.as_tensor(np.stack(self.scored))
+        angvel = torch.as_tensor(np.stack(self.angvel), dtype=torch.float32)
+        codes = self.model.encoder(self.model.features(window[None], angvel[None]))
+        return self.model.blstm.lstm(codes)[0][0], window
+
+    def _frame_out(self, position: int, values: np.ndarray) -> tuple[int, np.ndarray]:
+        """``(frame index, channels)`` of window ``position`` with its scored channels set to ``values``."""
+        frame = self.frames[position].copy()
+        frame[self.idx] = values
+        return self.count - len(self.frames) + position, frame
+
+    @torch.inference_mode()
+    def _emit(self, positions: list[int]) -> list[tuple[int, np.ndarray]]:
+        """Cleaned frames at ``positions`` of the current window, through the torch modules."""
+        lstm_out, window = self._window()
         model, h = self.model, self.half
         params = model.head(lstm_out[positions])  # [n, P]
         weights = model.filter_weights(params[None])[0]  # [C, n, K]
         pos = torch.as_tensor(positions)
         taps = (pos[:, None] + torch.arange(-h, h + 1)).clamp(0, len(window) - 1)  # [n, K]
         values = model.debias((window[taps].permute(2, 0, 1) * weights).sum(-1).T, params)  # [n, C]
-        first = self.count - len(self.frames)
-        out = []
-        for p, v in zip(positions, values.double().numpy()):
-            frame = self.frames[p].copy()
-            frame[self.idx] = v
-            out.append((first + p, frame))
-        return out
+        return [self._frame_out(p, v) for p, v in zip(positions, values.double().numpy())]
 
-    @torch.inference_mode()
-    def _window(self) -> tuple[torch.Tensor, torch.Tensor]:
-        lstm_out, _ = self.model.blstm.lstm(torch.stack(list(self.codes))[None])
-        window = torch.stack(list(self.scored))
-        self._last_window = (lstm_out[0], window)
-        return self._last_window
-
-    @torch.inference_mode()
     def push(self, frame: np.ndarray) -> list[tuple[int, np.ndarray]]:
         """Add frame ``count`` (channels ``[C]``, degrees); return the frames that became final."""
         frame = np.asarray(frame, dtype=np.float64)
         rot = context_matrix(self._chain, frame)
         self.frames.append(frame)
-        self.scored.append(torch.as_tensor(frame[self.idx], dtype=torch.float32))
+        self.scored.append(frame[self.idx].astype(np.float32))
         self.count += 1
         if self._prev_rot is None:
             self._prev_rot = rot
             return []
-        angvel = relative_rotvec(self._prev_rot, rot) * self.fps
+        angvel = (relative_rotvec(self._prev_rot, rot) * self.fps).astype(np.float32)
         self._prev_rot = rot
         if self.count == 2:
-            self.codes.append(self._encode(self.scored[0], angvel))
-        self.codes.append(self._encode(self.scored[-1], angvel))
+            self._add_angvel(angvel)
+        self._add_angvel(angvel)
         if self.count < self.width:
             return []
-        lstm_out, window = self._window()
-        positions = list(range(self.half + 1)) if self.count == self.width else [self.half]
-        return self._emit(positions, lstm_out, window)
+        if self.count == self.width:
+            return self._emit(list(range(self.half + 1)))
+        if self._kernel is None:
+            return self._emit([self.half])
+        values = self._kernel.centre(np.stack(self.proj), np.stack(self.scored))
+        return [self._frame_out(self.half, values.astype(np.float64))]
 
-    @torch.inference_mode()
     def flush(self) -> list[tuple[int, np.ndarray]]:
         """End of stream: the frames not returned yet."""
         if self.count == 0:
             return []
         if self.count == 1:
-            self.codes.append(self._encode(self.scored[0], np.zeros(3)))
+            self.angvel.append(np.zeros(3, dtype=np.float32))
         if self.count < self.width:
-            lstm_out, window = self._window()
-            return self._emit(list(range(self.count)), lstm_out, window)
-        lstm_out, window = self._last_window
-        return self._emit(list(range(self.half + 1, self.width)), lstm_out, window)
+            return self._emit(list(range(self.count)))
+        return self._emit(list(range(self.half + 1, self.width)))

@@ -89,9 +89,14 @@ def test_windowed_mode_is_local(sample, tiny):
     assert np.abs(out[148] - base[148]).max() > 1e-3
 
 
-@pytest.mark.parametrize("length", (12, 31, 75))
-def test_stream_matches_windowed_mode(length, sample, tiny):
-    model = tiny("ebf-bias", sample).eval()
+@pytest.mark.parametrize(
+    "kind, length", [("ebf-bias", 12), ("ebf-bias", 31), ("ebf-bias", 75), ("ebf", 75), ("ebf-free", 75)]
+)
+def test_stream_matches_windowed_mode(kind, length, sample, tiny):
+    model = tiny(kind, sample).eval()
+    if kind == "ebf-free":
+        with torch.no_grad():
+            model.head[-1].weight.normal_(0.0, 0.3)  # make the free kernels differ from frame to frame
     clip = sample.channels[300 : 300 + length]
     expected = clean_channels(model, clip, np.zeros(clip.shape, bool), sample.skeleton, sample.fps, "windowed")
     stream = EBFStream(model, sample.skeleton, sample.fps)
