@@ -225,7 +225,10 @@ def markdown(report: dict) -> str:
         "training folds 2-4, for bandai1 all of it). Metrics of PROTOCOL.md: `pos_err_cm` (whole body, all "
         "frames), `angle_err_deg` (all frames, scored channels), `gap_err_deg` (missing samples). Ratios to lerp.",
         f"- knn settings (BVH): {WindowSettings()}, chosen on bandai2 fold-1 clips (database without fold 1, "
-        "and without the clip's content label to mimic motion the database lacks).",
+        "and without the clip's content label to mimic motion the database lacks); the clip's own fully observed "
+        "windows compete with the database's. C3D knn: the registered default (`search=energy`: the paper's "
+        "per-frame kd-tree + energy minimisation, k 16, the take's own frames join the database, blend with "
+        "lerp at 150 cm/s; chosen on the Plug-in-Gait tennis serve, not on these takes).",
         "",
         "## Done when (issue 12)",
         "",

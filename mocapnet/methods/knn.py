@@ -806,8 +806,9 @@ def blend_points(
 @register(
     "knn",
     "points",
-    help="kNN from a clean database (default: nearest windows; search=energy: the paper's per-frame kd-tree + "
-    "energy minimisation), offset-corrected, blended with interpolation; options k, database=<folder>, own, "
+    help="kNN from a clean database (default search=energy: the paper's per-frame kd-tree + energy "
+    "minimisation; search=window: nearest windows), offset-corrected, blended with interpolation; options k, "
+    "database=<folder>, own, "
     "speed, offset, margin_s, near_gain, query_hz, distance_gain, search; energy: levels, reliable, max_gap_s, "
     "schedule, threshold, base; up",
 )
@@ -815,7 +816,7 @@ def _knn(
     context: MethodContext,
     k: int = 16,
     database: str | None = None,
-    search: str = "window",
+    search: str = "energy",
     own: bool = True,
     offset: bool = True,
     speed: float | None = 150.0,
@@ -831,12 +832,12 @@ def _knn(
     """``knn`` for point data. The database is ``database`` (folder(s) of C3D files, joined with
     ``os.pathsep``) when given, else ``context.train`` (the clip being cleaned, same ``name``, is left out),
     else the take's own frames. ``own``: the take's own fully observed frames join a given database too.
-    ``clean.database`` says which. ``search="window"`` (default): ``knn_window.fill_markers`` (options
-    ``margin_s``, ``near_gain``, ``query_hz``, ``distance_gain`` of ``WindowSettings``); ``"energy"``: the
-    paper's ``fill_gaps``, blended with ``base`` interpolation by ``blend_points``, samples it leaves NaN
-    filled linearly with a warning. ``speed`` in cm/s (None: no blend). Defaults (k 16, speed 150 cm/s,
-    own) were chosen on the Plug-in-Gait tennis serve (database: the pyCGM trial), not on the 41-marker
-    set the benchmark reports."""
+    ``clean.database`` says which. ``search="energy"`` (default): the paper's ``fill_gaps``, blended with
+    ``base`` interpolation by ``blend_points``, samples it leaves NaN filled linearly with a warning;
+    ``"window"``: ``knn_window.fill_markers`` (options ``margin_s``, ``near_gain``, ``query_hz``,
+    ``distance_gain`` of ``WindowSettings``). ``speed`` in cm/s (None: no blend). Defaults (energy, k 16,
+    speed 150 cm/s, own) were chosen on the Plug-in-Gait tennis serve (database: the pyCGM trial), not on
+    the 41-marker set the benchmark reports."""
     from mocapnet.methods.knn_window import WindowSettings, fill_markers
 
     if search not in ("window", "energy"):
