@@ -378,8 +378,10 @@ def markdown(report: dict) -> str:
         "## (a) Shared takes with real gaps: plausibility of the default clean",
         "",
         "Worst filled step ÷ the same marker's largest measured step (≤ 2 is the target; `c3d-fillcheck`'s "
-        "figure), share of gaps and of missing samples filled. `auto` = the new default; `pca` = the old "
-        "default (PCA, linear interpolation where it cannot rebuild).",
+        "figure), share of gaps wholly filled and of missing samples filled. `auto` = the new default (rigid/pca/"
+        "spline/lerp = gaps it filled, wholly or in part, with each); `pca` = the previous default method as it "
+        "is now (PCA with this change's fix, linear interpolation where PCA cannot be trusted: a constant over "
+        "gaps at the ends of a take, which scores 0 here).",
         "",
         "| take | frames × markers | missing | auto worst | auto gaps filled | auto samples filled | "
         "auto rigid/pca/spline/lerp | pca worst | pca worst at |",
