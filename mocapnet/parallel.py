@@ -19,7 +19,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any
 
-from mocapnet.threads import pin_threads
+from mocapnet.threads import THREAD_ENV, default_threads, pin_threads
 
 JOBQUEUE_HELP = """\
 a cluster on SLURM or PBS (dask-jobqueue, pip install dask-jobqueue), started from a Python prompt on the
@@ -84,6 +84,7 @@ def dask_client(parallel: Parallel) -> Iterator[Any]:
     """
     from distributed import Client, LocalCluster
 
+    threads = parallel.threads or default_threads()
     cluster = None
     if parallel.scheduler:
         try:
@@ -91,13 +92,22 @@ def dask_client(parallel: Parallel) -> Iterator[Any]:
         except (OSError, TimeoutError) as exc:
             raise ValueError(f"cannot reach the Dask scheduler {parallel.scheduler}: {exc}") from exc
     else:
-        cluster = LocalCluster(
-            n_workers=parallel.workers or local_cores(),
-            threads_per_worker=1,
-            processes=True,
-            dashboard_address=":0",  # the scheduler serves HTTP anyway: on a free port
-            silence_logs=logging.ERROR,
-        )
+        import dask
+
+        # Workers start with the thread variables and WITHOUT distributed's MALLOC_TRIM_THRESHOLD_ (it makes
+        # every numpy temporary over 64 kB an mmap: scoring ran 1.6x slower in a worker than here), and
+        # without the statistical profiler (a sampling thread).
+        environ = {var: threads for var in THREAD_ENV}
+        with dask.config.set(
+            {"distributed.nanny.pre-spawn-environ": environ, "distributed.worker.profile.enabled": False}
+        ):
+            cluster = LocalCluster(
+                n_workers=parallel.workers or local_cores(),
+                threads_per_worker=1,
+                processes=True,
+                dashboard_address=":0",  # the scheduler serves HTTP anyway: on a free port
+                silence_logs=logging.ERROR,
+            )
         client = Client(cluster)
     try:
         yield client
@@ -141,7 +151,7 @@ def imap_tasks(
 
         with dask_client(parallel) as client:
             sent = [client.scatter([obj], broadcast=True, hash=False)[0] for obj in shared]
-            threads = pin_threads(parallel.threads)
+            threads = parallel.threads or default_threads()
             futures = [client.submit(_run_pinned, item, fn, threads, *sent, pure=False) for item in items]
             index = {f.key: i for i, f in enumerate(futures)}
             for future in as_completed(futures):
