@@ -126,3 +126,9 @@ def test_method_spec_parses_once_with_windows_paths():
         MethodSpec.parse(":k=1")
     with pytest.raises(ValueError, match="must be key=value"):
         MethodSpec.parse("knn:k")
+
+
+def test_gaussian_tuned_can_tune_on_another_corpus(shared):
+    method = build_method("gaussian-tuned:tune_on=bandai2,max_clips=20", MethodContext(corruption="angular-0.5"))
+    sigmas = method.clean.sigmas_s
+    assert sigmas.shape == (132,) and (sigmas > 0).any()

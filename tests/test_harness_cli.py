@@ -198,3 +198,19 @@ def test_write_csv_gzip_is_reproducible(tmp_path):
     write_csv(tmp_path / "b.csv.gz", ev.rows)
     assert gzip.decompress((tmp_path / "a.csv.gz").read_bytes()) == (tmp_path / "a.csv").read_bytes()
     assert (tmp_path / "a.csv.gz").read_bytes() == (tmp_path / "b.csv.gz").read_bytes()
+
+
+def test_test_only_corpus_tunes_its_gaussian_reference_elsewhere():
+    from mocapnet.evaluate.harness import Evaluation, corpus_references
+
+    assert "gaussian-tuned:tune_on=bandai2" in corpus_references("bandai1", "angular-0.5")
+    assert "gaussian-tuned" in corpus_references("bandai2", "angular-0.5")
+    assert corpus_references("bandai1", "gaps") == ["lerp", "spline"]
+    rows = [
+        {"method": m, "angle_err_deg": v, "gap_err_deg": float("nan"), "rot_err_deg": 1.0, "pos_err_cm": 1.0,
+         "point_err_cm": float("nan"), "frames": 10, "seconds": 0.1}
+        for m, v in (("gaussian-58ms", 2.0), ("gaussian-tuned:tune_on=bandai2", 1.5), ("mine", 1.2))
+    ]  # fmt: skip
+    ev = Evaluation("bandai1", "angular-0.5", "angles", [r["method"] for r in rows], rows)
+    ratios = {e["method"]: e["ratio"] for e in summarize(ev)}
+    assert ratios["gaussian-tuned:tune_on=bandai2"] == 1.0 and ratios["mine"] == 1.2 / 1.5

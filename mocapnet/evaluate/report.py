@@ -13,6 +13,7 @@ import numpy as np
 
 from mocapnet.evaluate.harness import ROW_FIELDS, Evaluation, reference
 from mocapnet.io.atomic import atomic_output
+from mocapnet.methods.registry import MethodSpec
 
 
 def _mean(values: list[float]) -> float:
@@ -40,12 +41,18 @@ def summarize(ev: Evaluation) -> list[dict]:
         summary.append(entry)
     metric, reference = headline(ev)
     ref_value = min(
-        (e[metric] for e in summary if e["method"] in reference and math.isfinite(e[metric])), default=math.nan
+        (e[metric] for e in summary if _base(e["method"]) in reference and math.isfinite(e[metric])),
+        default=math.nan,
     )
     for e in summary:
         e["ratio"] = e[metric] / ref_value if ref_value and math.isfinite(ref_value) else float("nan")
         e["ratio_of"] = metric
     return summary
+
+
+def _base(method: str) -> str:
+    """A method's registered name (``gaussian-tuned:tune_on=bandai2`` → ``gaussian-tuned``)."""
+    return MethodSpec.parse(method).name
 
 
 def headline(ev: Evaluation) -> tuple[str, tuple[str, ...]]:
@@ -91,7 +98,7 @@ def table(ev: Evaluation, markdown: bool = False) -> str:
             )
         body.append(row)
     head = [c[1] for c in cols]
-    present = [m for m in reference if any(e["method"] == m for e in summary)]
+    present = [e["method"] for e in summary if _base(e["method"]) in reference]
     note = f"ratio = {metric} ÷ that of the best of {', '.join(present) or reference[0]}"
     if markdown:
         lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]

@@ -131,9 +131,22 @@ def tune_sigmas(
     return sigmas
 
 
-@register("gaussian-tuned", "angles", help="Gaussian with one sigma per channel tuned on the training folds")
-def _gaussian_tuned(context: MethodContext, corruption: str | None = None, max_clips: int = 400):
-    sigmas = tune_sigmas(context.train, corruption or context.corruption, context.corpus, max_clips=max_clips)
+@register(
+    "gaussian-tuned",
+    "angles",
+    help="Gaussian with one sigma per channel tuned on the training folds (to minimise the mean over clips of "
+    "each clip's RMS error); option tune_on=CORPUS tunes on that corpus's fold-0 training folds instead",
+)
+def _gaussian_tuned(
+    context: MethodContext, corruption: str | None = None, max_clips: int = 400, tune_on: str | None = None
+):
+    train, corpus = context.train, context.corpus
+    if tune_on:
+        from mocapnet.corpus import load_corpus
+
+        tuning = load_corpus(tune_on, progress=False)
+        train, corpus = tuning.split(0)[0], tuning.name
+    sigmas = tune_sigmas(train, corruption or context.corruption, corpus, max_clips=max_clips)
 
     def clean(noisy: Motion, mask: np.ndarray) -> np.ndarray:
         return _scored_only(noisy, gaussian_smooth(lerp_fill(noisy.channels, mask), sigmas, noisy.fps))
