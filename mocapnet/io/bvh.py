@@ -63,6 +63,7 @@ _FRAMES_RE = re.compile(rb"frames\s*:(.*)", re.IGNORECASE | re.DOTALL)
 _FRAME_TIME_RE = re.compile(rb"frame\s+time\s*:(.*)", re.IGNORECASE | re.DOTALL)
 _BAD_BYTE_RE = re.compile(rb"[^\t\n\x0b\x0c\r\x20-\x7e]")  # anything but printable ASCII and whitespace
 _NON_SPACE_RE = re.compile(rb"\S")
+_INFO_SEPARATORS = (b"\x1c", b"\x1d", b"\x1e", b"\x1f")
 _NAME_BAD_RE = re.compile(r"[{}\x00-\x1f\x7f]")
 _MOTION_LINE_RE = re.compile(rb"^[ \t\x0b\x0c]*MOTION[ \t\x0b\x0c]*$", re.MULTILINE | re.IGNORECASE)
 _HIERARCHY_CACHE: dict[bytes, tuple[Skeleton, float, int, int]] = {}  # HIERARCHY bytes -> parse result
@@ -466,6 +467,8 @@ def _parse_fixed_point(text: bytes, n_channels: int, start: int = 0) -> np.ndarr
         text, start = b"\n" * 9 + text[start:], 9
     if text[-1:] != b"\n":
         text += b"\n"
+    if text.find(b"e", start) >= 0 or text.find(b"E", start) >= 0:
+        return None  # exponents ("%g" files): decline before any work
     a = np.frombuffer(text, np.uint8)[start - 1 :]  # every token has a separator on both sides
     specials = np.flatnonzero(a < 48)
     kinds = a[specials]
@@ -512,8 +515,8 @@ def _parse_fixed_point(text: bytes, n_channels: int, start: int = 0) -> np.ndarr
 
 def _parse_general(body: bytes, n_channels: int) -> np.ndarray | None:
     """``[T, n_channels]`` frames through ``numpy.loadtxt``, or None when the text does not parse."""
-    if _BAD_BYTE_RE.search(body):
-        return None
+    if not body.isascii() or any(separator in body for separator in _INFO_SEPARATORS):
+        return None  # loadtxt would take these for whitespace; other control characters fail in loadtxt
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # loadtxt warns on input with no data; the caller checks that

@@ -110,7 +110,11 @@ def test_mutated_files_round_trip_or_name_the_file(motion, position, cut, insert
 
 _TOKEN = st.one_of(
     st.integers(-(10**8), 10**8).map(lambda m: f"{m / 1e4:.4f}"),
+    st.integers(-(10**17), 10**17).map(str),
+    st.floats(allow_nan=False, allow_infinity=False).map(lambda v: f"{v:g}"),
+    st.floats(allow_nan=False, allow_infinity=False).map(repr),
     st.sampled_from(["0.0000", "-0.0000", "+1.5000", "1.50", ".5000", "1.", "-", "1e3", "nan", "12", "1.0000.0000"]),
+    st.sampled_from(["1e", "1e+", "-1E-07", "1.5e3.5", "1.e5", "0e0", "-0", "1e999", "9" * 17, "0." + "0" * 12 + "1"]),
 )
 
 
