@@ -1,28 +1,25 @@
-"""Benchmark the shipped learned cleaners: quality against the baselines and speed on this machine.
+"""Benchmark the learned cleaners (EBF variants, EBD) against the baselines, across corpora, and their speed.
 
-    python scripts/bench_neural.py                       # everything, writes benchmarks/results/neural.{json,md}
-    python scripts/bench_neural.py --repeats 1 --limit 50 --out /tmp/neural   # a quick look
+    python scripts/bench_neural.py                                   # writes benchmarks/results/neural.{json,md}
+    python scripts/bench_neural.py --clips 60 --repeats 2            # a subset of test clips (stated in the output)
+    python scripts/bench_neural.py --method ebf-free=runs/x/best.ckpt --skip-speed   # a candidate checkpoint
 
-Quality: the harness (``mocapnet.evaluate.harness.evaluate_angles``) on bandai2 fold-0 test clips
-(angular-0.5, noise+gaps, gaps-long, gaps) and on the test segment (last 15 %) of the CMU 120 fps clip;
-errors are means over (clip, repeat) of per-clip RMS (PROTOCOL.md), ratios divide by the best Gaussian
-(angular noise) or by lerp / lerp+gaussian-58ms (gaps).
+Quality: every corruption of PROTOCOL.md on the fold-0 test clips of bandai2 (the models trained on folds
+2-4 and were selected on fold 1) and of bandai1 (never trained, tuned or selected on: cross-corpus). Each
+table row is ``report.summarize``: mean over (clip, repeat) of per-clip RMS errors; the ratio divides the
+headline error by the best reference baseline of ``harness.reference`` (the best of gaussian-58ms,
+gaussian-125ms and gaussian-tuned for noise; the better of lerp and spline for gaps; lerp+gaussian-58ms for
+noise+gaps). EBD is also scored per gap-length bin against lerp and spline.
 
-Speed (torch threads = ``--threads``): offline cleaning of a 10,000-frame clip (sequence and windowed mode,
-and the Gaussian baseline, each the median of ``--timing-repeats`` runs, gap filling and features included);
-streaming per-frame latency of EBF in windowed mode (``EBFStream.push``) against a streaming Gaussian that
-smooths the same 31-frame buffer; training frames/s of the bandai2 EBF configuration against the Gaussian
-baseline's own training (``gaussian-tuned``: choosing σ per channel on training clips), with and without
-jemalloc preloaded when ``/usr/lib/x86_64-linux-gnu/libjemalloc.so.2`` exists.
+Speed (1 torch/BLAS thread): offline cleaning of a 10,000-frame clip, peak memory of a 300,000-frame clean
+(``clean_channels``, in a child process), and the CPU time of ``EBFStream.push`` per frame.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import os
-import platform
-import statistics
+import resource
 import subprocess
 import sys
 import time
@@ -30,343 +27,279 @@ from pathlib import Path
 
 import numpy as np
 
+import mocapnet.methods.neural  # noqa: F401  (registers the EBF variant names)
 from mocapnet.corpus import load_corpus
-from mocapnet.corrupt import corrupt_motion
-from mocapnet.evaluate.harness import Evaluation, evaluate_angles
+from mocapnet.corrupt import ANGLE_CORRUPTIONS, corrupt_motion, seed_for
+from mocapnet.evaluate.benchmark import git_commit
+from mocapnet.evaluate.harness import Evaluation, corpus_references, evaluate_angles, has_gaps
+from mocapnet.evaluate.metrics import wrapped_diff
 from mocapnet.evaluate.report import summarize
-from mocapnet.methods.baselines import gaussian_smooth, tune_sigmas
+from mocapnet.fill import runs
 from mocapnet.methods.registry import build_method
 from mocapnet.motion import Motion
+from mocapnet.threads import pin_threads
 
 ROOT = Path(__file__).resolve().parents[1]
-JEMALLOC = Path("/usr/lib/x86_64-linux-gnu/libjemalloc.so.2")
-QUALITY = {
-    "angular-0.5": ["noisy", "gaussian-58ms", "gaussian-125ms", "ebf", "ebf:mode=windowed", "bf", "nn"],
-    "noise+gaps": ["lerp", "lerp+gaussian-58ms", "ebf", "ebd+ebf"],
-    "gaps-long": ["lerp", "ebd", "ebd:mode=windowed"],
-    "gaps": ["lerp", "ebd"],
-}
-CMU_QUALITY = {
-    "angular-0.5": ["noisy", "gaussian-58ms", "gaussian-125ms", "ebf", "ebf:mode=windowed"],
-    "noise+gaps": ["lerp", "lerp+gaussian-58ms", "ebf", "ebd+ebf"],
-    "gaps-long": ["lerp", "ebd"],
-}
+CORRUPTIONS = [c for c in ANGLE_CORRUPTIONS if c != "none"] + ["segment-gap:left-arm:0.5", "segment-gap:left-arm:2"]
+GAP_BINS = ((1, 5), (6, 15), (16, 30), (31, 60), (61, 10**9))  # frames, inclusive
+BIN_LABELS = ("≤ 5", "6–15", "16–30", "31–60", "> 60")
+BIN_CORRUPTIONS = ("gaps", "gaps-long", "segment-gap:left-arm:0.5", "segment-gap:left-arm:2")
 
 
-def available_methods(methods: list[str], motion: Motion, given: dict[str, str]) -> list[str]:
-    """The methods that can run on ``motion``'s skeleton: baselines, methods with a checkpoint in ``given``
-    (name → path, written ``name=path``) and those with a shipped checkpoint."""
-    from mocapnet.nn.checkpoints import shipped_checkpoint
+def shipped_variants(motion: Motion) -> list[str]:
+    """The EBF-family methods shipped for ``motion``'s skeleton: ``ebf`` and each variant by name."""
+    from mocapnet.nn.checkpoints import EBF_VARIANTS, read_index
+    from mocapnet.nn.features import topology_hash
 
-    kept = []
-    for text in methods:
-        if text in given:
-            kept.append(f"{text}={given[text]}")
-            continue
-        names = text.split(":")[0].split("+")
-        try:
-            for name in names:
-                if name in ("ebf", "ebd", "bf", "nn"):
-                    shipped_checkpoint(name, motion.skeleton)
-        except LookupError:
-            continue
-        kept.append(text)
-    return kept
+    mine = topology_hash(motion.skeleton)
+    names = [e["method"] for e in read_index() if e["skeleton_hash"] == mine]
+    return ["ebf"] + [n for n in (*EBF_VARIANTS, "bf", "nn") if n in names]
 
 
-def quality(
-    corpus_name: str, clips: list[Motion], train: list[Motion], table: dict, repeats: int, given: dict[str, str]
-) -> list[dict]:
-    """Summaries (``report.summarize``) per corruption."""
-    corpus = load_corpus(corpus_name, progress=False)
+def neural_methods(corruption: str, motion: Motion, extra: list[str]) -> list[str]:
+    """What to score beside the references: EBF variants on noise, EBD on gaps, EBD+EBF on noise+gaps."""
+    if corruption == "noise+gaps":
+        return ["ebd+ebf"]
+    if has_gaps(corruption):
+        return ["ebd"]
+    return shipped_variants(motion) + extra
+
+
+def subset(clips: list[Motion], n: int | None) -> list[Motion]:
+    """``n`` clips evenly spaced over ``clips`` (the fold's order is stratified by content), or all."""
+    return clips if not n or n >= len(clips) else clips[:: len(clips) // n][:n]
+
+
+def quality(name: str, n_clips: int | None, repeats: int, extra: list[str], corruptions: list[str]) -> list[dict]:
+    corpus = load_corpus(name, progress=False)
+    train, _, test = corpus.split(0)
+    clips = subset(test, n_clips)
     out = []
-    for corruption, methods in table.items():
-        wanted = available_methods(methods, clips[0], given)
+    for corruption in corruptions:
         start = time.perf_counter()
-        rows, skipped = evaluate_angles(corpus, clips, train, corruption, wanted, repeats, progress=False)
-        ev = Evaluation(corpus_name, corruption, "angles", wanted, rows, skipped, 0, repeats)
+        methods = corpus_references(name, corruption) + neural_methods(corruption, clips[0], extra)
+        rows, skipped = evaluate_angles(corpus, clips, train, corruption, methods, repeats, progress=False)
+        ev = Evaluation(name, corruption, "angles", methods, rows, skipped, 0, repeats)
+        n_scored = len({r["file"] for r in rows})
         for entry in summarize(ev):
-            entry.update(corpus=corpus_name, corruption=corruption, clips=len(clips), repeats=repeats)
-            out.append(entry)
-        print(
-            f"{corpus_name} {corruption}: {len(clips)} clips × {repeats} in {time.perf_counter() - start:.0f} s",
-            flush=True,
-        )
+            out.append({**entry, "corpus": name, "corruption": corruption, "clips": n_scored, "repeats": repeats})
+        print(f"{name} {corruption}: {n_scored} clips x {repeats} in {time.perf_counter() - start:.0f} s", flush=True)
     return out
 
 
-def long_clip(clips: list[Motion], n_frames: int) -> Motion:
-    """``n_frames`` frames made of consecutive clips (timing only: the joins are discontinuous)."""
-    ch = np.concatenate([m.channels for m in clips], axis=0)
-    reps = int(np.ceil(n_frames / len(ch)))
-    return clips[0].with_channels(np.tile(ch, (reps, 1))[:n_frames])
+def gap_bins(name: str, n_clips: int | None, repeats: int) -> list[dict]:
+    """RMS gap error (degrees) per gap-length bin of EBD, lerp and spline; a gap is one run of missing frames
+    of one scored joint, its error taken over that joint's scored channels."""
+    corpus = load_corpus(name, progress=False)
+    clips = subset(corpus.split(0)[2], n_clips)
+    methods = {m: build_method(m).clean for m in ("lerp", "spline", "ebd")}
+    out = []
+    for corruption in BIN_CORRUPTIONS:
+        sse = np.zeros((len(methods), len(GAP_BINS)))
+        count = np.zeros(len(GAP_BINS))
+        gaps = np.zeros(len(GAP_BINS), dtype=int)
+        for motion in clips:
+            sk = motion.skeleton
+            scored = np.flatnonzero(sk.scored_mask)
+            cols_of = [c for c in (np.intersect1d(sk.joint_channels(j), scored) for j in sk.scored_joints) if c.size]
+            for rep in range(repeats):
+                rng = np.random.default_rng(seed_for(name, motion.name, rep, corruption))
+                try:
+                    noisy, mask = corrupt_motion(motion, corruption, rng)
+                except ValueError:
+                    break
+                outs = [clean(motion.with_channels(noisy), mask) for clean in methods.values()]
+                for cols in cols_of:
+                    for a, b in runs(mask[:, cols[0]]):
+                        k = next(i for i, (lo, hi) in enumerate(GAP_BINS) if lo <= b - a <= hi)
+                        gaps[k] += 1
+                        count[k] += (b - a) * len(cols)
+                        for m, o in enumerate(outs):
+                            sse[m, k] += float((wrapped_diff(o[a:b, cols], motion.channels[a:b, cols]) ** 2).sum())
+        for m, method in enumerate(methods):
+            for k in range(len(GAP_BINS)):
+                rms = float(np.sqrt(sse[m, k] / count[k])) if count[k] else float("nan")
+                out.append(
+                    {
+                        "corpus": name,
+                        "corruption": corruption,
+                        "method": method,
+                        "bin": BIN_LABELS[k],
+                        "gaps": int(gaps[k]),
+                        "rms_deg": rms,
+                    }
+                )
+        print(f"bins {name} {corruption}: {len(clips)} clips x {repeats}", flush=True)
+    return out
 
 
-def median_time(fn, repeats: int) -> float:
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - start)
-    return statistics.median(times)
+def long_clip(n_frames: int) -> Motion:
+    """``n_frames`` of bandai2 fold-0 test clips, each played forth and back (timing and memory only)."""
+    test = load_corpus("bandai2", progress=False).split(0)[2][:40]
+    ch = np.concatenate([np.concatenate([m.channels, m.channels[::-1]]) for m in test])
+    return test[0].with_channels(np.tile(ch, (int(np.ceil(n_frames / len(ch))), 1))[:n_frames])
 
 
-def offline_speed(clip: Motion, repeats: int) -> dict:
-    """Frames/s of cleaning ``clip`` (angular-0.5) by EBF in both modes and by the Gaussian baseline."""
-    noisy_ch, mask = corrupt_motion(clip, "angular-0.5", np.random.default_rng(0))
-    noisy = clip.with_channels(noisy_ch)
-    out = {"frames": clip.n_frames}
-    for text in ("gaussian-58ms", "ebf", "ebf:mode=windowed"):
+def speed(methods: list[str], repeats: int) -> dict:
+    clip = long_clip(10_000)
+    noisy, mask = corrupt_motion(clip, "angular-0.5", np.random.default_rng(0))
+    offline = {}
+    for text in ["gaussian-58ms", *methods]:
         clean = build_method(text).clean
-        clean(noisy, mask)  # warm-up (loads the checkpoint)
-        seconds = median_time(lambda c=clean: c(noisy, mask), repeats)
-        out[text] = {"seconds": seconds, "frames_per_s": clip.n_frames / seconds}
-    return out
+        clean(clip.with_channels(noisy), mask)  # warm-up: loads the checkpoint
+        times = []
+        for _ in range(repeats):
+            start = time.perf_counter()
+            clean(clip.with_channels(noisy), mask)
+            times.append(time.perf_counter() - start)
+        offline[text] = {"seconds": float(np.median(times)), "frames_per_s": clip.n_frames / float(np.median(times))}
+    return {
+        "offline_frames": clip.n_frames,
+        "offline": offline,
+        "streaming": streaming(clip, methods, 3000),
+        "rss_300k": {m: rss_child(m) for m in methods},
+    }
 
 
-def streaming_latency(clip: Motion, n_frames: int, threads: int) -> dict:
-    """Per-frame latency of ``EBFStream.push`` (after the first window) and of a streaming Gaussian, with
-    ``threads`` torch threads (one stream per thread is the natural deployment: batch-1 steps gain nothing
-    from more)."""
-    import torch
-
+def streaming(clip: Motion, methods: list[str], n_frames: int) -> dict:
     from mocapnet.nn.checkpoints import shipped_checkpoint
     from mocapnet.nn.infer import EBFStream, load_model
 
-    previous_threads = torch.get_num_threads()
-    torch.set_num_threads(threads)
-
-    model = load_model(shipped_checkpoint("ebf", clip.skeleton))
-    noisy_ch, _ = corrupt_motion(clip, "angular-0.5", np.random.default_rng(1))
-    frames = noisy_ch[:n_frames]
-    stream = EBFStream(model, clip.skeleton, clip.fps)
-    width = 2 * model.hparams.half + 1
-    ebf_times, gauss_times = [], []
-    scored = clip.skeleton.scored_mask
-    for t, frame in enumerate(frames):
-        start = time.perf_counter()
-        stream.push(frame)
-        elapsed = time.perf_counter() - start
-        if t >= width:
-            ebf_times.append(elapsed)
-            window = frames[t - width + 1 : t + 1]
-            start = time.perf_counter()
-            result = frame.copy()
-            result[scored] = gaussian_smooth(window[:, scored], 0.058, clip.fps)[width // 2]
-            gauss_times.append(time.perf_counter() - start)
-
-    def stats(times: list[float]) -> dict:
-        ms = np.asarray(times) * 1e3
-        return {"median_ms": float(np.median(ms)), "p99_ms": float(np.percentile(ms, 99)), "n": len(ms)}
-
-    torch.set_num_threads(previous_threads)
-    return {
-        "ebf_windowed": stats(ebf_times),
-        "gaussian-58ms": stats(gauss_times),
-        "lookahead_frames": width // 2,
-        "torch_threads": threads,
-    }
+    noisy, _ = corrupt_motion(clip, "angular-0.5", np.random.default_rng(1))
+    out = {}
+    for name in (m for m in methods if m.startswith("ebf")):
+        stream = EBFStream(load_model(shipped_checkpoint(name, clip.skeleton)), clip.skeleton, clip.fps)
+        cpu, wall = [], []
+        for frame in noisy[:n_frames]:
+            c0, w0 = time.thread_time(), time.perf_counter()
+            stream.push(frame)
+            cpu.append(time.thread_time() - c0)
+            wall.append(time.perf_counter() - w0)
+        cpu_ms, wall_ms = np.array(cpu[2 * stream.half + 2 :]) * 1e3, np.array(wall[2 * stream.half + 2 :]) * 1e3
+        out[name] = {
+            "cpu_median_ms": float(np.median(cpu_ms)),
+            "cpu_p99_ms": float(np.percentile(cpu_ms, 99)),
+            "wall_median_ms": float(np.median(wall_ms)),
+            "wall_p99_ms": float(np.percentile(wall_ms, 99)),
+        }
+    return out
 
 
-def training_speed(steps: int) -> dict:
-    """Training frames/s of the bandai2_ebf configuration (data sampling and corruption included) and the
-    Gaussian baseline's tuning frames/s on the same training clips."""
-    import torch
-    from hydra import compose, initialize_config_dir
+def rss_child(method: str) -> dict:
+    """Peak RSS (MB) of a fresh process cleaning 300,000 frames with ``method`` (``--rss-child``)."""
+    cmd = [sys.executable, __file__, "--rss-child", method]
+    return json.loads(subprocess.run(cmd, capture_output=True, text=True, check=True).stdout.splitlines()[-1])
 
-    from mocapnet.nn.train import build
 
-    with initialize_config_dir(config_dir=str(ROOT / "mocapnet" / "conf"), version_base="1.3"):
-        cfg = compose("train", overrides=["experiment=bandai2_ebf", "name=bench", "runs_root=/tmp"])
-    data, model = build(cfg)
-    opt = torch.optim.Adam(model.parameters(), lr=1e-3)
-    rng = np.random.default_rng(0)
-    model.train()
-    frames, seconds = 0, 0.0
-    for step in range(steps + 3):
-        start = time.perf_counter()
-        batch = data.sample_batch(rng)
-        sq, sel = model.loss_terms(batch, model.predict_batch(batch))
-        loss = (sq * sel).sum() / sel.sum()
-        opt.zero_grad()
-        loss.backward()
-        opt.step()
-        if step >= 3:  # warm-up steps excluded
-            seconds += time.perf_counter() - start
-            frames += batch["clean"].shape[0] * batch["clean"].shape[1]
-    train, _, _ = load_corpus("bandai2", progress=False).split(0)
-    clips = train[:: max(1, len(train) // 200)][:200]
+def rss_run(method: str) -> None:
+    pin_threads(1)
+    clip = long_clip(300_000)
+    clean = build_method(method).clean
+    mask = np.zeros(clip.channels.shape, dtype=bool)
+    before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     start = time.perf_counter()
-    tune_sigmas(clips, "angular-0.5", "bandai2", max_clips=len(clips))
-    tune_s = time.perf_counter() - start
-    return {
-        "ebf_train_frames_per_s": frames / seconds,
-        "ebf_steps": steps,
-        "batch": f"{cfg.data.batch_size} crops of {cfg.data.crop_min}-{cfg.data.crop_max} frames "
-        f"({cfg.data.window_fraction:.0%} of batches {cfg.data.window_frames})",
-        "gaussian_tuned_frames_per_s": sum(m.n_frames for m in clips) / tune_s,
-        "ld_preload": os.environ.get("LD_PRELOAD", ""),
-    }
-
-
-def training_speed_subprocess(steps: int, threads: int, preload: str | None) -> dict:
-    env = dict(os.environ)
-    env.pop("LD_PRELOAD", None)
-    if preload:
-        env["LD_PRELOAD"] = preload
-    cmd = [sys.executable, __file__, "--train-speed-only", str(steps), "--threads", str(threads)]
-    out = subprocess.run(cmd, env=env, capture_output=True, text=True, check=True).stdout
-    return json.loads(out.strip().splitlines()[-1])
-
-
-def machine(threads: int) -> dict:
-    import torch
-
-    cpu = next((ln.split(":", 1)[1].strip() for ln in open("/proc/cpuinfo") if ln.startswith("model name")), "?")
-    commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
-    return {
-        "cpu": cpu,
-        "cores": os.cpu_count(),
-        "load_average_at_start": os.getloadavg(),
-        "torch": torch.__version__,
-        "torch_threads": threads,
-        "python": platform.python_version(),
-        "git_commit": commit,
-    }
+    clean(clip, mask)
+    seconds = time.perf_counter() - start
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    print(json.dumps({"peak_mb": peak, "before_clean_mb": before, "seconds": seconds, "frames": clip.n_frames}))
 
 
 def markdown(result: dict) -> str:
     lines = [
-        "# Learned cleaners (EBF / EBD): quality and speed",
+        "# Learned cleaners (EBF variants, EBD): quality across corpora and speed",
         "",
         f"Command: `{result['command']}`  ",
-        *(
-            [f"Quality figures from an earlier run of: `{result['quality_command']}`  "]
-            if "quality_command" in result
-            else []
-        ),
-        f"Git commit: `{result['machine']['git_commit']}`  ",
-        f"Machine: {result['machine']['cpu']}, {result['machine']['cores']} cores, torch "
-        f"{result['machine']['torch']} with {result['machine']['torch_threads']} threads; load average at start "
-        f"{', '.join(f'{x:.1f}' for x in result['machine']['load_average_at_start'])} (shared machine).  ",
-        "Checkpoints: the shipped ones (`mocapnet/checkpoints/index.json`).",
+        f"Git commit: `{result['commit']}`; load average at start {result['load']} on the shared 2-core machine.",
         "",
-        "## Quality",
-        "",
-        "Mean over (clip, repeat) of per-clip RMS errors in degrees (PROTOCOL.md). Ratio: error ÷ best Gaussian "
-        "(angular noise, on angle_err) or ÷ best of lerp / lerp+gaussian-58ms (gaps, on gap_err). bandai2: fold-0 "
-        "test clips; cmu120: the last 15 % of the clip (the first 70 % trained the model, the next 15 % selected "
-        "it).",
-        "",
-        "| corpus | corruption | clips × repeats | method | angle_err_deg | gap_err_deg | rot_err_deg | ratio |",
-        "|---|---|---|---|---|---|---|---|",
     ]
-    for e in result["quality"]:
-        lines.append(
-            f"| {e['corpus']} | {e['corruption']} | {e['clips']} × {e['repeats']} | {e['method']} | "
-            f"{e['angle_err_deg']:.3f} | {e['gap_err_deg']:.3f} | {e['rot_err_deg']:.3f} | {e['ratio']:.3f} |"
-        )
-    off = result["speed"]["offline"]
-    lines += [
-        "",
-        "## Speed",
-        "",
-        f"Offline cleaning of a {off['frames']:,}-frame bandai2 clip (angular-0.5; gap filling and features "
-        "included), median of runs:",
-        "",
-        "| method | seconds | frames/s | × Gaussian time |",
-        "|---|---|---|---|",
-    ]
-    g = off["gaussian-58ms"]["seconds"]
-    for key in ("gaussian-58ms", "ebf", "ebf:mode=windowed"):
-        lines.append(
-            f"| {key} | {off[key]['seconds']:.4f} | {off[key]['frames_per_s']:,.0f} | {off[key]['seconds'] / g:.1f} |"
-        )
-    st = result["speed"]["streaming"]
-    lines += [
-        "",
-        f"Streaming (windowed EBF, lookahead {st['lookahead_frames']} frames, {st['torch_threads']} torch "
-        f"thread), per-frame latency over {st['ebf_windowed']['n']} frames:",
-        "",
-        "| method | median ms | p99 ms |",
-        "|---|---|---|",
-        f"| EBFStream.push | {st['ebf_windowed']['median_ms']:.3f} | {st['ebf_windowed']['p99_ms']:.3f} |",
-        f"| Gaussian 58 ms on the same 31-frame buffer | {st['gaussian-58ms']['median_ms']:.3f} | "
-        f"{st['gaussian-58ms']['p99_ms']:.3f} |",
-        "",
-        "Training (bandai2_ebf configuration, one process):",
-        "",
-        "| run | EBF training frames/s | Gaussian-tuned tuning frames/s |",
-        "|---|---|---|",
-    ]
-    for key, tr in result["speed"]["training"].items():
-        lines.append(f"| {key} | {tr['ebf_train_frames_per_s']:,.0f} | {tr['gaussian_tuned_frames_per_s']:,.0f} |")
+    if result.get("quality"):
+        lines += [
+            "| corpus | corruption | clips × repeats | method | headline ° | ratio | frames/s |",
+            "|---|---|---|---|---|---|---|",
+        ]
+        for e in result["quality"]:
+            err = e[e["ratio_of"]]
+            lines.append(
+                f"| {e['corpus']} | {e['corruption']} | {e['clips']} × {e['repeats']} | {e['method']} | "
+                f"{err:.3f} ({e['ratio_of'].removesuffix('_deg')}) | {e['ratio']:.3f} | {e['frames_per_s']:,.0f} |"
+            )
+    if result.get("gap_bins"):
+        lines += [
+            "",
+            "EBD gap error per gap length (frames), RMS °:",
+            "",
+            "| corpus | corruption | bin | gaps | lerp | spline | ebd |",
+            "|---|---|---|---|---|---|---|",
+        ]
+        by = {}
+        for b in result["gap_bins"]:
+            by.setdefault((b["corpus"], b["corruption"], b["bin"]), {})[b["method"]] = b
+        for (corpus, corruption, bin_), m in by.items():
+            if m["lerp"]["gaps"]:
+                lines.append(
+                    f"| {corpus} | {corruption} | {bin_} | {m['lerp']['gaps']} | {m['lerp']['rms_deg']:.3f} | "
+                    f"{m['spline']['rms_deg']:.3f} | {m['ebd']['rms_deg']:.3f} |"
+                )
+    if result.get("speed"):
+        sp = result["speed"]
+        lines += [
+            "",
+            f"Speed, 1 thread: offline {sp['offline_frames']:,}-frame bandai2 clip (median), 300,000-frame "
+            "clean peak RSS (fresh process), EBFStream.push per frame after the first window:",
+            "",
+            "| method | offline frames/s | 300k peak RSS MB | 300k s | push CPU median / p99 ms | wall p99 ms |",
+            "|---|---|---|---|---|---|",
+        ]
+        for m, o in sp["offline"].items():
+            r, s = sp["rss_300k"].get(m), sp["streaming"].get(m)
+            lines.append(
+                f"| {m} | {o['frames_per_s']:,.0f} | {r['peak_mb']:.0f} | {r['seconds']:.1f} | "
+                if r
+                else f"| {m} | {o['frames_per_s']:,.0f} | — | — | "
+            )
+            lines[-1] += (
+                f"{s['cpu_median_ms']:.3f} / {s['cpu_p99_ms']:.3f} | {s['wall_p99_ms']:.2f} |" if s else "— | — |"
+            )
     return "\n".join(lines) + "\n"
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--repeats", type=int, default=5, help="corruption repeats per clip (PROTOCOL: 5)")
-    parser.add_argument("--limit", type=int, default=None, help="score only the first N test clips")
-    parser.add_argument("--threads", type=int, default=2, help="torch threads")
+    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--clips", type=int, default=None, help="score N evenly spaced fold-0 test clips per corpus")
+    parser.add_argument("--corpus", action="append", help="corpora (default bandai2 and bandai1)")
+    parser.add_argument("--corruption", action="append", help="corruptions (default: all of PROTOCOL.md)")
+    parser.add_argument("--method", action="append", default=[], help="extra noise method, e.g. ebf-free=PATH")
+    parser.add_argument("--skip-quality", action="store_true")
+    parser.add_argument("--skip-bins", action="store_true")
+    parser.add_argument("--skip-speed", action="store_true")
     parser.add_argument("--timing-repeats", type=int, default=5)
-    parser.add_argument("--stream-threads", type=int, default=1, help="torch threads for the streaming latency")
-    parser.add_argument("--train-steps", type=int, default=20)
-    parser.add_argument(
-        "--skip-quality", action="store_true", help="time only; keep the quality section of an existing results file"
-    )
-    parser.add_argument(
-        "--method-checkpoint",
-        action="append",
-        default=[],
-        metavar="NAME=PATH",
-        help="score bandai2 method NAME (e.g. nn) from PATH instead of a shipped checkpoint",
-    )
     parser.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "neural"), help="path without suffix")
-    parser.add_argument("--train-speed-only", type=int, default=None, help=argparse.SUPPRESS)
+    parser.add_argument("--rss-child", help=argparse.SUPPRESS)
     args = parser.parse_args()
+    if args.rss_child:
+        return rss_run(args.rss_child)
+    pin_threads(1)
+    import os
 
-    import torch
-
-    torch.set_num_threads(args.threads)
-    torch.set_flush_denormal(True)
-    if args.train_speed_only is not None:
-        print(json.dumps(training_speed(args.train_speed_only)))
-        return
     result = {
         "command": "python " + " ".join([Path(sys.argv[0]).as_posix()] + sys.argv[1:]),
-        "machine": machine(args.threads),
+        "commit": git_commit(),
+        "load": ", ".join(f"{x:.1f}" for x in os.getloadavg()),
     }
-    bandai = load_corpus("bandai2", progress=False)
-    train, _, test = bandai.split(0)
-    test = test[: args.limit] if args.limit else test
-    out = Path(args.out)
-    previous = json.loads(out.with_suffix(".json").read_text()) if out.with_suffix(".json").exists() else {}
-    if args.skip_quality and "quality" in previous:  # keep the earlier quality run and its command
-        result["quality"] = previous["quality"]
-        result["quality_command"] = previous.get("quality_command", previous["command"])
+    corpora = args.corpus or ["bandai2", "bandai1"]
+    corruptions = args.corruption or CORRUPTIONS
     if not args.skip_quality:
-        from mocapnet.nn.data import corpus_splits
-
-        given = dict(item.split("=", 1) for item in args.method_checkpoint)
-        result["quality"] = quality("bandai2", test, train, QUALITY, args.repeats, given)
-        cmu_train, _, cmu_test = corpus_splits("cmu120", 0)
-        result["quality"] += quality("cmu120", cmu_test, cmu_train, CMU_QUALITY, args.repeats, {})
-    clip = long_clip(test, 10_000)
-    result["speed"] = {
-        "offline": offline_speed(clip, args.timing_repeats),
-        "streaming": streaming_latency(clip, 3000, args.stream_threads),
-        "training": {"default allocator": training_speed_subprocess(args.train_steps, args.threads, None)},
-    }
-    if JEMALLOC.exists():
-        result["speed"]["training"]["jemalloc (LD_PRELOAD)"] = training_speed_subprocess(
-            args.train_steps, args.threads, str(JEMALLOC)
-        )
+        result["quality"] = [e for c in corpora for e in quality(c, args.clips, args.repeats, args.method, corruptions)]
+    if not args.skip_bins:
+        result["gap_bins"] = [b for c in corpora for b in gap_bins(c, args.clips, args.repeats)]
+    if not args.skip_speed:
+        result["speed"] = speed(shipped_variants(long_clip(100)), args.timing_repeats)
+    out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.with_suffix(".json").write_text(json.dumps(result, indent=1, default=float) + "\n")
-    if "quality" in result:
-        out.with_suffix(".md").write_text(markdown(result))
-    print(json.dumps(result["speed"], indent=1, default=float))
+    out.with_suffix(".md").write_text(markdown(result))
+    print(out.with_suffix(".md").read_text())
 
 
 if __name__ == "__main__":
