@@ -44,7 +44,7 @@ import numpy as np
 from mocapnet.methods.baselines import lerp_fill, spline_fill
 from mocapnet.methods.pca import fill_remaining_linear, pca_fill
 from mocapnet.methods.registry import MethodContext, build_method, register
-from mocapnet.methods.rigid import distance_spread, gap_runs, rigid_fill_gap, rigid_reach
+from mocapnet.methods.rigid import distance_stats, gap_runs, rigid_fill_gap, rigid_reach
 from mocapnet.motion import Markers
 
 CANDIDATES = ("rigid", "pca", "knn", "spline", "lerp")
@@ -52,6 +52,12 @@ INTERPOLATORS = ("spline", "lerp")
 # Candidates that need both edges of a gap measured: interpolation cannot extrapolate, and PCA / kNN carried
 # from one edge drifted by 17-22 cm on the occlusion benchmark (rigid one-sided fills: 3-8 cm).
 NEED_BOTH_EDGES = ("pca", "knn", *INTERPOLATORS)
+# Relational check (the constraint matrix of mocapnet.methods.extrapolate, as bounds): in a fill, the
+# distance to every visible marker must stay within the range measured between the two, widened on each side
+# by BOUND_SLACK of its width plus BOUND_TOLERANCE_CM (occlusions happen in unusual poses: a tight bound
+# refused correct 4-frame fills of the tennis serve's shoulder).
+BOUND_TOLERANCE_CM = 2.0
+BOUND_SLACK = 0.25
 _MIN_MEASURED_STEPS = 10  # a marker with fewer measured steps is compared with the largest of all markers
 
 
@@ -151,12 +157,29 @@ class _Candidates:
         self.max_residual_cm = max_residual_cm
         self._whole: dict[str, np.ndarray] = {}
         self._spread: np.ndarray | None = None
+        self._low = self._high = np.empty(0)
 
     def spread(self) -> np.ndarray:
         """Distance spread ``[M, M]`` (cm) of every marker pair, computed once."""
         if self._spread is None:
-            self._spread = distance_spread(self.points, self.visible)
+            self._spread, self._low, self._high = distance_stats(self.points, self.visible)
         return self._spread
+
+    def bounds_violation(self, fill: np.ndarray, marker: int, start: int, stop: int) -> float:
+        """How far (cm) a fill ``[stop - start, 3]`` of ``marker`` leaves the range of distances measured
+        between it and each other marker (widened by ``BOUND_SLACK`` of its width), where that marker is
+        visible (0: never)."""
+        self.spread()
+        low, high = self._low[marker], self._high[marker]
+        near = np.isfinite(low)
+        near[marker] = False
+        if not near.any():
+            return 0.0
+        others = self.points[start:stop][:, near]  # [L, K, 3], NaN where not visible
+        d = np.linalg.norm(others - fill[:, None], axis=-1)
+        slack = BOUND_SLACK * (high[near] - low[near])
+        over = np.fmax(low[near] - slack - d, d - high[near] - slack)
+        return float(np.nanmax(over, initial=0.0)) if np.isfinite(over).any() else 0.0
 
     def whole(self, name: str) -> np.ndarray:
         if name not in self._whole:
@@ -282,6 +305,11 @@ def auto_fill(
         if not ratio <= limit:
             if note:
                 report["tried"].append(f"{name}: step ratio {ratio:.2f} > {limit:g}")
+            return False
+        outside = candidates.bounds_violation(fill, m, start, stop)
+        if outside > BOUND_TOLERANCE_CM:
+            if note:
+                report["tried"].append(f"{name}: {outside:.1f} cm outside a distance range measured to another marker")
             return False
         out[start:stop, m] = fill
         filled[start:stop, m] = True

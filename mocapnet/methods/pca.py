@@ -61,10 +61,14 @@ def mean_distances(points: np.ndarray, visible: np.ndarray, markers: np.ndarray)
 
 def _principal(data: np.ndarray, min_cum_sv: float) -> tuple[np.ndarray, int]:
     """Principal vectors ``[C, C']`` (columns) of ``data [N, C]`` and how many reach ``min_cum_sv`` of the
-    summed singular values."""
-    _, sv, vt = np.linalg.svd(data / np.sqrt(max(len(data) - 1, 1)), full_matrices=False)
+    summed singular values. From the eigenvectors of the ``[C, C]`` scatter matrix (singular values are the
+    square roots of its eigenvalues): the same vectors as an SVD of ``data``, for a fraction of the work when
+    ``N`` is thousands of frames."""
+    values, vectors = np.linalg.eigh(data.T @ data / max(len(data) - 1, 1))
+    order = np.argsort(values)[::-1][: min(len(data), data.shape[1])]
+    sv = np.sqrt(np.maximum(values[order], 0.0))
     n = int(np.searchsorted(np.cumsum(sv), min_cum_sv * sv.sum()) + 1)
-    return vt.T, min(n, len(sv))
+    return vectors[:, order], min(n, len(sv))
 
 
 def _reconstruct(

@@ -40,24 +40,34 @@ def gap_runs(missing: np.ndarray) -> list[tuple[int, int]]:
     return list(zip(np.flatnonzero(edges == 1).tolist(), np.flatnonzero(edges == -1).tolist()))
 
 
-def distance_spread(points: np.ndarray, visible: np.ndarray) -> np.ndarray:
-    """Standard deviation (cm) of the distance between every pair of markers over the frames where both
-    are measured, ``[M, M]`` (at most 1000 evenly spaced frames of ``points [T, M, 3]`` cm; NaN for pairs
-    measured together in fewer than 10 frames; 0 on the diagonal)."""
+def distance_stats(points: np.ndarray, visible: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Standard deviation, smallest and largest distance (cm) between every pair of markers over the frames
+    where both are measured, each ``[M, M]`` (at most 1000 evenly spaced frames of ``points [T, M, 3]`` cm;
+    NaN for pairs measured together in fewer than 10 frames)."""
     step = max(1, len(points) // _SPREAD_FRAMES)
     pts, vis = np.nan_to_num(points[::step]), visible[::step]
     n = vis.astype(np.float64)
     both = np.einsum("ti,tj->ij", n, n)
     total, total2 = np.zeros(both.shape), np.zeros(both.shape)
+    low, high = np.full(both.shape, np.inf), np.full(both.shape, -np.inf)
     for t in range(len(pts)):  # one frame at a time keeps memory at [M, M]
         d = np.linalg.norm(pts[t, :, None] - pts[t, None], axis=-1)
         w = np.outer(n[t], n[t])
         total += w * d
         total2 += w * d * d
+        seen = w > 0
+        low = np.where(seen, np.minimum(low, d), low)
+        high = np.where(seen, np.maximum(high, d), high)
     enough = both >= _MIN_TOGETHER
     safe = np.where(enough, both, 1.0)
     var = np.maximum(total2 / safe - (total / safe) ** 2, 0.0)
-    return np.where(enough, np.sqrt(var), np.nan)
+    return np.where(enough, np.sqrt(var), np.nan), np.where(enough, low, np.nan), np.where(enough, high, np.nan)
+
+
+def distance_spread(points: np.ndarray, visible: np.ndarray) -> np.ndarray:
+    """Standard deviation (cm) of the distance between every pair of markers over the frames where both are
+    measured, ``[M, M]`` (see :func:`distance_stats`; 0 on the diagonal)."""
+    return distance_stats(points, visible)[0]
 
 
 def kabsch(source: np.ndarray, target: np.ndarray, weights: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
