@@ -41,8 +41,9 @@ from torch.utils.data import DataLoader, IterableDataset
 from mocapnet.corpus import load_corpus
 from mocapnet.corrupt import additive_noise, corrupt_motion, gap_mask, long_gap_mask, seed_for, spatial_noise
 from mocapnet.fill import lerp_fill
-from mocapnet.motion import Motion
+from mocapnet.motion import Motion, Skeleton
 from mocapnet.nn.features import ClipArrays, Normaliser, scored_index, scored_joint_of_channel, topology_hash
+from mocapnet.segments import skeleton_segment
 
 TRAIN_CORRUPTIONS = (
     "none",
@@ -54,7 +55,11 @@ TRAIN_CORRUPTIONS = (
     "gaps",
     "gaps-long",
     "noise+gaps",
+    "segment-gaps",
+    "noise+segment-gaps",
 )
+#: Limbs whose scored joints ``segment-gaps`` removes together (``segments.skeleton_segment``).
+GAP_SEGMENTS = ("left-arm", "right-arm", "left-leg", "right-leg")
 
 
 def spatial_level(name: str) -> float | None:
@@ -89,12 +94,15 @@ def corrupt_window(
     name: str,
     rng: np.random.Generator,
     spatial: np.ndarray | None = None,
+    segments: Sequence[np.ndarray] = (),
 ) -> tuple[np.ndarray, np.ndarray]:
     """Corrupt a training crop of scored channels ``[L, C_s]`` (degrees) with the training corruption
     ``name`` (one of ``TRAIN_CORRUPTIONS``, K and X numbers); ``sigma [C_s]`` is the clip's σ_c and
     ``joint_of_channel [C_s]`` maps channels to scored joints for gaps; ``spatial [L, C_s]`` (degrees) is the
-    IK residual of X cm joint noise over the crop (``spatial_residual``), needed by ``spatial-Xcm``. Returns
-    ``(noisy, mask)``, ``noisy`` holding the corrupted (not yet filled) values where the mask is True."""
+    IK residual of X cm joint noise over the crop (``spatial_residual``), needed by ``spatial-Xcm``;
+    ``segments`` (scored-joint indices of each limb) are needed by ``segment-gaps`` (``segment_gap_mask``;
+    ``noise+segment-gaps`` adds the angular-0.5 noise of ``noise+gaps``). Returns ``(noisy, mask)``, ``noisy``
+    holding the corrupted (not yet filled) values where the mask is True."""
     level = spatial_level(name)
     known = name in TRAIN_CORRUPTIONS or name.startswith(("angular-", "uniform-")) or level is not None
     if not known:
@@ -107,14 +115,56 @@ def corrupt_window(
         return crop + rng.choice([-1.0, 1.0]) * spatial, no_gaps
     if name == "none":
         return crop.copy(), no_gaps
-    noisy = crop.copy() if name in ("gaps", "gaps-long") else additive_noise(name, crop, sigma, fps, rng)
-    if name in ("gaps", "noise+gaps"):
+    if name in ("gaps", "gaps-long", "segment-gaps"):
+        noisy = crop.copy()
+    else:
+        noisy = additive_noise("noise+gaps" if name == "noise+segment-gaps" else name, crop, sigma, fps, rng)
+    if name.endswith("segment-gaps"):
+        if not segments:
+            raise ValueError(f"training corruption {name!r} needs the skeleton's limbs (segments)")
+        joint_mask = segment_gap_mask(len(crop), segments, n_joints, fps, rng)
+    elif name in ("gaps", "noise+gaps"):
         joint_mask = gap_mask(len(crop), n_joints, fps, rng)
     elif name == "gaps-long":
         joint_mask = long_gap_mask(len(crop), np.arange(n_joints), n_joints, fps, rng)
     else:
         return noisy, no_gaps
     return noisy, joint_mask[:, joint_of_channel]
+
+
+def segment_gap_mask(
+    n_frames: int,
+    segments: Sequence[np.ndarray],
+    n_joints: int,
+    fps: float,
+    rng: np.random.Generator,
+    seconds: tuple[float, float] = (0.1, 5.0),
+) -> np.ndarray:
+    """Joint mask ``[L, J_s]``: every joint of one random limb (``segments``: scored-joint indices per limb)
+    missing for one run of uniform length in ``seconds``, shortened to leave a visible frame at each end."""
+    mask = np.zeros((n_frames, n_joints), dtype=bool)
+    if n_frames < 3:
+        return mask
+    limb = segments[int(rng.integers(len(segments)))]
+    length = int(np.clip(round(rng.uniform(*seconds) * fps), 1, n_frames - 2))
+    start = int(rng.integers(1, n_frames - length))
+    mask[start : start + length, limb] = True
+    return mask
+
+
+def limb_joints(skeleton: Skeleton) -> list[np.ndarray]:
+    """Scored-joint indices (0 … J_s-1) of each limb of ``GAP_SEGMENTS`` the skeleton has."""
+    scored = list(skeleton.scored_joints)
+    out = []
+    for segment in GAP_SEGMENTS:
+        try:
+            joints = skeleton_segment(skeleton, segment)
+        except ValueError:
+            continue
+        idx = [scored.index(j) for j in joints if j in scored]
+        if idx:
+            out.append(np.array(idx))
+    return out
 
 
 def resample(x: np.ndarray, positions: np.ndarray) -> np.ndarray:
@@ -209,22 +259,27 @@ class MotionDataModule(L.LightningDataModule):
         self.n_channels = int(skeleton.scored_mask.sum())
         self.channel_labels = [skeleton.channel_labels[i] for i in scored_index(skeleton)]
         self.joint_of_channel = scored_joint_of_channel(skeleton)
+        self.segments = limb_joints(skeleton)
         self.train_clips = [ClipArrays.from_motion(m) for m in train]
         rng = np.random.default_rng([hp.seed, 7])
         for level in sorted({spatial_level(c) for c in hp.corruptions} - {None}):
             self.spatial[level] = [spatial_residual(m, level, rng) for m in train]
         self.lengths = np.array([c.scored.shape[0] for c in self.train_clips])
         val = val[:: max(1, len(val) // hp.val_limit)][: hp.val_limit] if hp.val_limit else val
-        self.val_batches = [self.corrupted_clip(m, c) for m in val for c in hp.val_corruptions]
+        self.val_batches = [b for m in val for c in hp.val_corruptions if (b := self.corrupted_clip(m, c))]
 
     def normaliser(self) -> Normaliser:
         """Input statistics of the clean training clips."""
         return Normaliser.fit([c.scored for c in self.train_clips], [c.angvel for c in self.train_clips])
 
-    def corrupted_clip(self, motion: Motion, corruption: str, repeat: int = 0) -> dict[str, torch.Tensor]:
-        """One whole clip as a batch of 1, corrupted with the protocol's seed for ``repeat``."""
+    def corrupted_clip(self, motion: Motion, corruption: str, repeat: int = 0) -> dict[str, torch.Tensor] | None:
+        """One whole clip as a batch of 1, corrupted with the protocol's seed for ``repeat``; None when the clip
+        is too short for the corruption (e.g. a 2 s segment gap with 1 s visible each side)."""
         rng = np.random.default_rng(seed_for(self.hparams.corpus, motion.name, repeat, corruption))
-        noisy, mask = corrupt_motion(motion, corruption, rng)
+        try:
+            noisy, mask = corrupt_motion(motion, corruption, rng)
+        except ValueError:
+            return None
         idx = scored_index(motion.skeleton)
         clip = ClipArrays.from_motion(motion)
         filled = lerp_fill(noisy, mask)[:, idx]
@@ -254,7 +309,7 @@ class MotionDataModule(L.LightningDataModule):
             corruption = hp.corruptions[int(rng.integers(len(hp.corruptions)))]
             level = spatial_level(corruption)
             spatial = None if level is None else self.spatial[level][i][np.round(positions).astype(np.int64)]
-            args = (clip.sigma, self.joint_of_channel, clip.fps, corruption, rng, spatial)
+            args = (clip.sigma, self.joint_of_channel, clip.fps, corruption, rng, spatial, self.segments)
             noisy, mask = corrupt_window(clean, *args)
             out["filled"].append(lerp_fill(noisy, mask) if mask.any() else noisy)
             out["mask"].append(mask)

@@ -1,0 +1,67 @@
+"""Training crops: every training corruption, spatial noise through IK residuals, whole-limb gaps, time warping."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from mocapnet.fill import runs
+from mocapnet.motion import Motion
+from mocapnet.nn.data import MotionDataModule, corrupt_window, resample, segment_gap_mask, spatial_level
+
+
+@pytest.fixture(scope="module")
+def module() -> MotionDataModule:
+    corruptions = ("none", "angular-0.3", "uniform-0.5", "spatial-1cm", "bias-sine", "segment-gaps", "gaps-long")
+    dm = MotionDataModule(corpus="sample", corruptions=corruptions, time_warp=(0.8, 1.25), batch_size=4)
+    dm.setup()
+    return dm
+
+
+def test_every_training_corruption_gives_a_crop_and_mask(module: MotionDataModule):
+    clip = module.train_clips[0]
+    crop = clip.scored[:100].astype(np.float64)
+    rng = np.random.default_rng(0)
+    spatial = module.spatial[1.0][0][:100]
+    for name in ("none", "angular-0.7", "uniform-0.5", "spatial-1cm", "bias-const", "bias-sine", "gaps",
+                 "gaps-long", "noise+gaps", "segment-gaps", "noise+segment-gaps"):  # fmt: skip
+        noisy, mask = corrupt_window(
+            crop, clip.sigma, module.joint_of_channel, 120.0, name, rng, spatial, module.segments
+        )
+        assert noisy.shape == crop.shape == mask.shape and np.isfinite(noisy).all(), name
+        assert mask.any() == ("gaps" in name), name
+        assert (np.abs(noisy - crop).max() > 0) == (name not in ("none", "gaps", "gaps-long", "segment-gaps")), name
+    with pytest.raises(ValueError, match="not supported"):
+        corrupt_window(crop, clip.sigma, module.joint_of_channel, 120.0, "zigzag", rng)
+    with pytest.raises(ValueError, match="IK residual"):
+        corrupt_window(crop, clip.sigma, module.joint_of_channel, 120.0, "spatial-1cm", rng)
+    assert spatial_level("spatial-0.5cm") == 0.5 and spatial_level("angular-0.5") is None
+
+
+def test_spatial_residual_is_what_ik_does_to_joint_noise(module: MotionDataModule, sample: Motion):
+    unit = module.spatial[1.0][0]
+    assert unit.shape == module.train_clips[0].scored.shape
+    assert 0.1 < float(np.median(np.abs(unit))) < 20.0  # degrees for 1 cm of joint noise
+
+
+def test_segment_gap_removes_one_whole_limb_for_one_run(module: MotionDataModule):
+    rng = np.random.default_rng(3)
+    n_joints = int(module.joint_of_channel.max()) + 1
+    for _ in range(20):
+        mask = segment_gap_mask(200, module.segments, n_joints, 120.0, rng)
+        missing = np.flatnonzero(mask.any(axis=0))
+        assert any(set(missing) == set(limb) for limb in module.segments)
+        assert len(runs(mask[:, missing[0]])) == 1 and not mask[0].any() and not mask[-1].any()
+        assert (mask[:, missing] == mask[:, missing[:1]]).all()
+
+
+def test_time_warped_batches(module: MotionDataModule):
+    x = np.arange(20.0)[:, None] * np.array([[1.0, -2.0]])
+    np.testing.assert_allclose(resample(x, np.array([0.0, 3.0, 19.0])), x[[0, 3, 19]])
+    np.testing.assert_allclose(resample(x, np.array([2.5])), [[2.5, -5.0]])
+    rng = np.random.default_rng(0)
+    for _ in range(10):
+        batch = module.sample_batch(rng)
+        n = batch["clean"].shape[1]
+        assert batch["filled"].shape == batch["mask"].shape == (4, n, module.n_channels)
+        assert batch["angvel"].shape == (4, n, 3) and bool(batch["filled"].isfinite().all())
