@@ -37,7 +37,7 @@ from mocapnet.evaluate.harness import evaluate_angles
 from mocapnet.io.atomic import atomic_output
 from mocapnet.io.c3d import read_c3d
 from mocapnet.methods import MethodContext, build_method
-from mocapnet.methods.knn_angles import fill_angles
+from mocapnet.methods.knn_angles import ANGLE_DEFAULTS, fill_angles
 from mocapnet.methods.knn_database import cached_database
 from mocapnet.methods.knn_window import Searcher, WindowSettings
 from mocapnet.segments import SEGMENTS
@@ -157,7 +157,7 @@ def bench_speed(n_clips: int) -> dict:
             noisy, mask = corrupt_motion(
                 m, corruption, np.random.default_rng(seed_for("bandai1", m.name, 0, corruption))
             )
-            _, stats = fill_angles(m.with_channels(noisy), mask, db, WindowSettings(), (), searcher)
+            _, stats = fill_angles(m.with_channels(noisy), mask, db, None, (), searcher)
             frames = int(mask.any(axis=1).sum())
             points.append({"gap_s": s, "cpu_s": stats.total_s, "search_s": stats.search_s, "frames": frames})
     return {"database": db.describe(), "load_s": load_s, "clips": len(clips), "points": points}
@@ -225,11 +225,12 @@ def markdown(report: dict) -> str:
         f"{report['repeats']} repeat(s); database bandai2 ({speed['database']}; for bandai2 fold 0 only its "
         "training folds 2-4, for bandai1 all of it). Metrics of PROTOCOL.md: `pos_err_cm` (whole body, all "
         "frames), `angle_err_deg` (all frames, scored channels), `gap_err_deg` (missing samples). Ratios to lerp.",
-        f"- knn settings (BVH): {WindowSettings()}, chosen on bandai2 fold-1 clips (database without fold 1, "
-        "and without the clip's content label to mimic motion the database lacks); the clip's own fully observed "
-        "windows compete with the database's. C3D knn: the registered default (`search=energy`: the paper's "
-        "per-frame kd-tree + energy minimisation, k 16, the take's own frames join the database, blend with "
-        "lerp at 150 cm/s; chosen on the Plug-in-Gait tennis serve, not on these takes).",
+        f"- knn settings (BVH): {WindowSettings(**ANGLE_DEFAULTS)}, chosen on bandai2 fold-1 clips "
+        "(database without fold 1, and without the clip's content label to mimic motion the database lacks); "
+        "the clip's own fully observed windows compete with the database's.",
+        "- C3D knn: the registered default (`search=energy`: the paper's per-frame kd-tree + energy "
+        "minimisation, k 16, the take's own frames join the database, blend with lerp at 150 cm/s; chosen on "
+        "the Plug-in-Gait tennis serve, not on these takes).",
         "",
         "## Done when (issue 12)",
         "",

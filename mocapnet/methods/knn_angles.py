@@ -21,11 +21,13 @@ For every *gap* (maximal run of frames in which some scored channel is missing):
    own missing run, each neighbour contributes its deviation from its own straight line between the run's
    edge frames, added to the linear interpolation of the observed edges (one edge only: its offset). The
    weighted mean is the estimate; the weighted spread of the contributions (degrees) is kept.
-4. **Blend.** ``out = lerp + β (knn − lerp)`` with ``β = 1 / (1 + (σ / (speed · d))²)``, d (s) the
-   distance to the nearest observed frame of that channel and ``σ² = spread² + (distance_gain · rms)²``
-   (rms: the neighbours' feature distance per point, cm): interpolation next to the observed frames, where
-   the neighbours disagree, or where nothing in the database is close; the database where they agree.
-   With the truth in the database σ = 0 and the fill is exact.
+4. **Blend.** ``out = f + β (knn − f)`` with ``β = 1 / (1 + (σ / (speed · d))²)``, d (s) the distance
+   to the nearest observed frame of that channel and ``σ² = spread² + (distance_gain · rms)²`` (rms: the
+   neighbours' feature distance per point, cm). The fallback f is linear interpolation or (default) the
+   clip's own PCA fill (Gløersen & Federolf on the joint positions, back to angles by IK, ``pca_angles``):
+   f next to the observed frames, where the neighbours disagree, or where nothing in the database is
+   close (motion the database lacks); the database where they agree. With the truth in the database
+   σ = 0 and the fill is exact.
 
 Observed samples and unscored channels are never changed; missing unscored channels are interpolated.
 """
@@ -33,11 +35,13 @@ Observed samples and unscored channels are never changed; missing unscored chann
 from __future__ import annotations
 
 import time
+import warnings
 from collections.abc import Callable, Iterable
 from typing import Any
 
 import numpy as np
 
+from mocapnet.kinematics import inverse_kinematics, joint_positions
 from mocapnet.methods import knn_database  # a module import: knn_database and knn import each other
 from mocapnet.methods.baselines import lerp_fill
 from mocapnet.methods.knn import _runs, edge_seconds
@@ -50,6 +54,7 @@ from mocapnet.methods.knn_window import (
     gather,
     neighbour_windows,
 )
+from mocapnet.methods.pca import pca_fill
 from mocapnet.methods.registry import MethodContext, register
 from mocapnet.motion import Motion, Skeleton
 
@@ -100,6 +105,25 @@ def hop_distances(skeleton: Skeleton, joints: Iterable[int]) -> np.ndarray:
     return dist
 
 
+# Joint-space defaults that differ from ``WindowSettings``'s, chosen on bandai2 fold-1 clips with and
+# without their content label in the database (the second mimics motion the database lacks).
+ANGLE_DEFAULTS: dict[str, Any] = {"fallback": "pca", "distance_gain": 3.0}
+
+
+def pca_angles(motion: Motion, mask: np.ndarray, base: np.ndarray, visible: np.ndarray) -> np.ndarray:
+    """``base [T, C]`` (degrees) with the masked samples replaced by the Gløersen & Federolf PCA fill of the
+    joint and End Site positions (``visible [T, P]``), taken back to angles by ``inverse_kinematics`` (twist
+    from ``base``); points PCA cannot rebuild keep ``base``'s positions."""
+    ref = motion.with_channels(base)
+    pos = joint_positions(ref, end_sites=True)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        filled = pca_fill(np.where(visible[..., None], pos, np.nan), visible)
+    out = base.copy()
+    out[mask] = inverse_kinematics(ref, np.where(np.isfinite(filled), filled, pos))[mask]
+    return out
+
+
 def fill_angles(
     motion: Motion,
     mask: np.ndarray,
@@ -113,7 +137,9 @@ def fill_angles(
 
     Raises ValueError naming the motion when its skeleton does not match the database's."""
     t_start = time.process_time()
-    settings = settings or WindowSettings()
+    settings = settings or WindowSettings(**ANGLE_DEFAULTS)
+    if settings.fallback not in ("lerp", "pca"):
+        raise ValueError(f"knn: fallback must be lerp or pca, got {settings.fallback!r}")
     sk = motion.skeleton
     db.check(sk, motion.name)
     searcher = searcher or Searcher(db.points, db.clip, db.describe())
@@ -134,6 +160,7 @@ def fill_angles(
     seconds = edge_seconds(mask, motion.fps)
     n_t = motion.n_frames
     complete = ~smask.any(axis=1)
+    anchor = pca_angles(motion, mask, base, points_visible(sk, joint_missing)) if settings.fallback == "pca" else base
     own = Searcher(feats, np.zeros(n_t, dtype=int), f"{motion.name} itself") if settings.own else None
     for a, b in _runs(smask.any(axis=1)):
         stats.gaps += 1
@@ -158,7 +185,8 @@ def fill_angles(
         for u, c in enumerate(cols):
             near = base[span, c][:, None] + wrap(traj[:, :, u] - base[span, c][:, None])  # [S, k] degrees
             for c0, c1 in _runs(mask[lo : hi + 1, c]):
-                fill_run(out[:, c], base[:, c], near, kernel, seconds[:, c], lo, (c0 + lo, c1 + lo), rms, settings)
+                run = (c0 + lo, c1 + lo)
+                fill_run(out[:, c], base[:, c], near, kernel, seconds[:, c], lo, run, rms, settings, anchor[:, c])
     out[~mask] = motion.channels[~mask]
     stats.total_s = time.process_time() - t_start
     return out, stats
@@ -192,7 +220,7 @@ def _knn_angles(
     largest corpus of the input's skeleton under the data root, or else ``context.train``. When the
     database is the corpus being scored, only its training clips (``context.train``) are used; the clip
     being filled (same name) is always left out. The database is built on the first call."""
-    settings = WindowSettings(**options)  # an unknown option is a TypeError, reported by build_method
+    settings = WindowSettings(**{**ANGLE_DEFAULTS, **options})  # an unknown option: TypeError, see build_method
     built: dict[tuple, Callable[[Motion, np.ndarray], np.ndarray]] = {}
 
     def clean(noisy: Motion, mask: np.ndarray) -> np.ndarray:

@@ -118,7 +118,8 @@ class WindowSettings:
     correction on/off, query pose rate ``query_hz``, and ``distance_gain`` (degrees or cm per cm): the
     neighbours' RMS feature distance per point times this is added (in quadrature) to their spread, so
     motion unlike anything in the database falls back to interpolation; ``own``: windows of the input's own
-    fully observed frames compete with the database's (a repeated gesture, a gait cycle)."""
+    fully observed frames compete with the database's (a repeated gesture, a gait cycle); ``fallback``:
+    what the blend falls back to, ``lerp`` or (joint space only) ``pca`` (``knn_angles.pca_angles``)."""
 
     k: int = 16
     margin_s: float = 0.3
@@ -128,6 +129,7 @@ class WindowSettings:
     query_hz: float = 10.0
     distance_gain: float = 0.0
     own: bool = True
+    fallback: str = "lerp"
 
 
 def fill_run(
@@ -140,12 +142,14 @@ def fill_run(
     run: tuple[int, int],
     rms: float,
     settings: WindowSettings,
+    anchor: np.ndarray | None = None,
 ) -> None:
     """Fill one channel's missing run ``[c0, c1)`` of ``out [T]`` (degrees, in place) from the neighbours'
     values ``near [S, k]`` at frames ``lo, lo + 1, …`` (kernel weights ``[k]``): with ``offset``, each
     neighbour contributes its deviation from its own straight line between the run's edge frames, added
     to ``base`` (the interpolation); the weighted spread of the contributions and the neighbours' distance
-    ``rms`` (cm) set the blend weight. ``seconds [T]``: distance to the nearest observed frame."""
+    ``rms`` (cm) set the blend weight towards ``anchor [T]`` (default ``base``). ``seconds [T]``: distance to
+    the nearest observed frame."""
     c0, c1 = run
     t = np.arange(c0, c1)
     vals = near[t - lo]
@@ -162,7 +166,8 @@ def fill_run(
         out[t] = est
         return
     beta = blend_weight(np.hypot(spread, settings.distance_gain * rms), seconds[t], settings.speed)
-    out[t] = base[t] + beta * (est - base[t])
+    anchor = base if anchor is None else anchor
+    out[t] = anchor[t] + beta * (est - anchor[t])
 
 
 def neighbour_windows(
@@ -219,6 +224,8 @@ def fill_markers(
     when the database lacks a point with missing samples."""
     t_start = time.process_time()
     settings = settings or WindowSettings()
+    if settings.fallback != "lerp":
+        raise ValueError(f"knn: point data falls back to lerp only, got fallback={settings.fallback!r}")
     stats = FillStats()
     name = markers.name or "markers"
     cols = database.checked_columns(markers)
