@@ -37,6 +37,7 @@ from mocapnet.nn.features import topology_hash
 
 CHECKPOINT_DIR = Path(__file__).resolve().parents[1] / "checkpoints"
 INDEX = CHECKPOINT_DIR / "index.json"
+_NORMALISER = ("center", "scale", "angvel_scale")  # buffers kept in float32 by ``export(fp16=True)``
 _KEEP = (
     "state_dict",
     "hyper_parameters",
@@ -158,14 +159,21 @@ def export(
     recipe: str = "",
     budget: str = "",
     as_ebf: bool = False,
+    fp16: bool = False,
 ) -> Path:
     """Slim ``src`` into ``mocapnet/checkpoints/<name>.ckpt`` and record it in ``index.json`` (replacing an
     entry of the same file name) with its SHA-256, ``recipe`` (how it was trained, in words) and ``budget``
-    (wall-clock training time). ``as_ebf``: this EBF variant becomes what ``ebf`` runs for its skeleton."""
+    (wall-clock training time). ``as_ebf``: this EBF variant becomes what ``ebf`` runs for its skeleton.
+    ``fp16``: store the weights in half precision (half the bytes; loading casts them back to float32), the
+    normaliser buffers stay float32."""
     from mocapnet.corpus import load_corpus
 
     ckpt = read_checkpoint(src)
     slim = {k: ckpt[k] for k in _KEEP if k in ckpt}
+    if fp16:
+        slim["state_dict"] = {
+            k: v.half() if v.is_floating_point() and k not in _NORMALISER else v for k, v in slim["state_dict"].items()
+        }
     hp = slim["hyper_parameters"]
     skeleton = load_corpus(hp["corpus"], progress=False).motions[0].skeleton
     if topology_hash(skeleton) != hp["skeleton_hash"]:
@@ -188,6 +196,8 @@ def export(
         "global_step": slim.get("global_step"),
         "val_metric": "val/gap_err_deg" if slim["mocapnet_model"] == "EBD" else "val/angle_err_deg",
         "val_score": None if score is None else round(float(score), 4),
+        "val_corruptions": list(ckpt.get("datamodule_hyper_parameters", {}).get("val_corruptions", [])),
+        "weights": "float16" if fp16 else "float32",
         "epochs": None if slim.get("epoch") is None else int(slim["epoch"]) + 1,
         "bytes": dst.stat().st_size,
         "sha256": sha256_of(dst),
@@ -217,8 +227,10 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--recipe", default="", help="how it was trained, in words, recorded in index.json")
     parser.add_argument("--budget", default="", help="wall-clock training budget, e.g. '70 min on 1 CPU thread'")
     parser.add_argument("--ebf", action="store_true", help="make this EBF variant the one `ebf` runs")
+    parser.add_argument("--fp16", action="store_true", help="store the weights in half precision")
     args = parser.parse_args(argv)
-    print(export(args.checkpoint, args.name, args.command, recipe=args.recipe, budget=args.budget, as_ebf=args.ebf))
+    options = {"recipe": args.recipe, "budget": args.budget, "as_ebf": args.ebf, "fp16": args.fp16}
+    print(export(args.checkpoint, args.name, args.command, **options))
 
 
 if __name__ == "__main__":

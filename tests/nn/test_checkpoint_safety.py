@@ -159,3 +159,25 @@ def test_shipped_checkpoints_carry_a_verified_sha256(tmp_path, monkeypatch):
     monkeypatch.setattr(checkpoints, "INDEX", fake_dir / "index.json")
     with pytest.raises(MocapFileError, match="SHA-256"):
         read_checkpoint(fake_dir / name)
+
+
+@pytest.mark.parametrize("fp16", [False, True])
+def test_export_records_sha256_and_keeps_the_network(fp16, tiny, sample, tmp_path, monkeypatch):
+    from tests.nn.test_neural_methods import save
+
+    model = tiny("ebf-free", sample).eval()
+    src = save(model, tmp_path / "run.ckpt")
+    monkeypatch.setattr(checkpoints, "CHECKPOINT_DIR", (tmp_path / "ship").resolve())
+    monkeypatch.setattr(checkpoints, "INDEX", tmp_path / "ship" / "index.json")
+    dst = checkpoints.export(src, "sample_ebf_free", "cmd", recipe="r", budget="b", as_ebf=True, fp16=fp16)
+    entry = read_index()[0]
+    assert entry["method"] == "ebf-free" and entry["ebf"] and entry["sha256"] == sha256_of(dst)
+    assert entry["weights"] == ("float16" if fp16 else "float32") and entry["recipe"] == "r"
+    assert checkpoints.shipped_checkpoint("ebf", sample.skeleton) == dst
+    loaded = load_model(dst)
+    assert loaded.center.dtype == torch.float32
+    x = torch.as_tensor(sample.channels[:64, sample.skeleton.scored_mask], dtype=torch.float32)[None]
+    w = torch.zeros(1, 64, 3)
+    with torch.inference_mode():
+        diff = (loaded(x, w) - model(x, w)).abs().max()
+    assert float(diff) < (0.05 if fp16 else 1e-5)
