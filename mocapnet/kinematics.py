@@ -236,7 +236,7 @@ def geodesic_deg(rot_a: np.ndarray, rot_b: np.ndarray) -> np.ndarray:
     ``atan2(sin, cos)`` of the relative rotation (sin from its skew part, cos from its trace): accurate to
     rounding at every angle, where ``arccos`` of the trace loses half the digits near 0° (1e-6° off).
     """
-    rel = np.einsum("...ki,...kj->...ij", rot_a, rot_b)
-    cos = (rel[..., 0, 0] + rel[..., 1, 1] + rel[..., 2, 2] - 1.0) / 2.0
-    skew = np.stack([rel[..., 2, 1] - rel[..., 1, 2], rel[..., 0, 2] - rel[..., 2, 0], rel[..., 1, 0] - rel[..., 0, 1]])
-    return np.degrees(np.arctan2(np.linalg.norm(skew, axis=0) / 2.0, cos))
+    # rel = rot_a^T rot_b: trace(rel) = Σ a∘b; its skew part (rel - rel^T) is minus the sum of the rows' cross products
+    cos = ((rot_a * rot_b).sum(axis=(-2, -1)) - 1.0) / 2.0
+    skew = np.cross(rot_a, rot_b).sum(axis=-2)
+    return np.degrees(np.arctan2(np.linalg.norm(skew, axis=-1) / 2.0, cos))

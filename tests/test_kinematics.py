@@ -110,3 +110,14 @@ def test_mixed_axis_orders_and_translations_in_one_skeleton():
     np.testing.assert_array_equal(trans[:, 0], m.channels[:, :3])
     np.testing.assert_array_equal(trans[:, 2, 1], m.channels[:, 9])
     np.testing.assert_array_equal(trans[:, 3], np.broadcast_to(sk.offsets[3], (7, 3)))
+
+
+def test_geodesic_angle_is_accurate_at_every_size():
+    from mocapnet.kinematics import geodesic_deg
+
+    a = Rotation.random(500, random_state=0)
+    for angle_rad in (1e-9, 1e-4, 0.5, 3.0):
+        axis = np.random.default_rng(1).normal(size=(500, 3))
+        step = Rotation.from_rotvec(axis / np.linalg.norm(axis, axis=1, keepdims=True) * angle_rad)
+        got = geodesic_deg(a.as_matrix(), (a * step).as_matrix())
+        np.testing.assert_allclose(got, np.degrees(angle_rad), rtol=1e-6, atol=1e-12)
