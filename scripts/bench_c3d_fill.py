@@ -40,6 +40,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from mocapnet.corpus import data_root  # noqa: E402
+from mocapnet.corrupt import corrupt_markers  # noqa: E402
 from mocapnet.evaluate.benchmark import (  # noqa: E402
     gapfill_rigid_body,
     gapfill_spline,
@@ -74,6 +75,9 @@ TARGETS = (
     "c3d/ezc3d/Qualisys.c3d",
     "c3d/ezc3d/Vicon.c3d",
 )
+# Part (c): the corruptions of mocapnet.corrupt on the 41-marker takes whose segments it knows.
+SEGMENT_TARGETS = (*TARGETS[:3], *TARGETS[4:6])  # CMU 02_01 is too short (2.9 s) for a 2-s gap with 2 s in view
+SEGMENT_CORRUPTIONS = ("marker-gap:1", "segment-gap:left-arm:1", "segment-gap:right-leg:2")
 # The targets whose cases were looked at while choosing auto's defaults (the rigid residual bounds, PCA and
 # interpolation only between two measured edges); the other targets are reported apart as held out.
 TUNING_TARGETS = TARGETS[0::2]
@@ -198,6 +202,71 @@ def gap_seconds(visible: np.ndarray, fps: float) -> np.ndarray:
     return out
 
 
+def score_case(truth: Markers, noisy: Markers, case: dict) -> dict:
+    """Fill ``noisy`` with every method and add to ``case`` the gap counts and, per gap-length bin and
+    method, the summed error (cm) on the samples auto filled (``bins``)."""
+    length = noisy.n_frames
+    fills, cpu, gaps = method_fills(noisy)
+    scored = ~noisy.visible & np.isfinite(fills["auto"]).all(axis=2)
+    seconds = gap_seconds(noisy.visible, noisy.fps)
+    case.update(
+        {
+            "frames": length,
+            "markers": noisy.n_markers,
+            "missing_share": float((~noisy.visible).mean()),
+            "gaps": len(gaps),
+            "gaps_filled_by_auto": sum(g["status"] == "filled" for g in gaps),
+            "gaps_partly_filled_by_auto": sum(g["status"] == "partly filled" for g in gaps),
+            "unfilled_samples_in_end_gaps": sum(
+                b - a + 1
+                for g in gaps
+                if g["first_frame"] == 0 or g["last_frame"] == length - 1
+                for a, b in g["unfilled_spans"]
+            ),
+            "auto_methods": {m: sum(g["method"] == m for g in gaps) for m in ("rigid", "pca", "spline", "lerp")},
+            "missing_samples": int((~noisy.visible).sum()),
+            "scored_samples": int(scored.sum()),
+            "cpu_s": cpu,
+            "bins": {},
+        }
+    )
+    auto_err = np.linalg.norm(fills["auto"] - truth.points, axis=-1)
+    for name, fill in fills.items():
+        left = scored & ~np.isfinite(fill).all(axis=2)
+        fill = flat(lerp_fill, fill, np.isfinite(fill).all(axis=2)) if left.any() else fill
+        err = np.linalg.norm(fill - truth.points, axis=-1)
+        for (lo, hi), bin_name in zip(BINS, BIN_NAMES):
+            sel = scored & (seconds > lo) & (seconds <= hi)
+            own = sel & ~left
+            case["bins"].setdefault(bin_name, {})[name] = {
+                "sum_cm": float(err[sel].sum()),
+                "n": int(sel.sum()),
+                "lerp_backfilled": int((left & sel).sum()),
+                "own_sum_cm": float(err[own].sum()),
+                "auto_on_own_sum_cm": float(auto_err[own].sum()),
+            }
+        case.setdefault("all_missing_mean_cm", {})[name] = (
+            float(np.nanmean(err[~noisy.visible])) if name != "auto" else None
+        )
+    return case
+
+
+def bench_segments(root: Path, seed: int, progress: bool) -> dict:
+    """Part (c): whole-segment and single-marker gaps (``mocapnet.corrupt``) on the 41-marker HDM05/CMU takes."""
+    cases = []
+    for t_index, target_name in enumerate(SEGMENT_TARGETS):
+        truth = read_c3d(root / target_name)
+        truth = truth.select(np.flatnonzero(truth.visible.all(axis=0)))
+        for c_index, corruption in enumerate(SEGMENT_CORRUPTIONS):
+            noisy = corrupt_markers(truth, corruption, np.random.default_rng([seed, t_index, c_index]))
+            case = score_case(truth, noisy, {"target": target_name, "corruption": corruption})
+            cases.append(case)
+            if progress:
+                print(f"  {Path(target_name).name} {corruption}: auto filled {case['scored_samples']}/"
+                      f"{case['missing_samples']} samples", file=sys.stderr, flush=True)  # fmt: skip
+    return {"cases": cases, "summary": summarise(cases)}
+
+
 def bench_occlusion(root: Path, window_s: float, seed: int, targets: tuple[str, ...], progress: bool) -> dict:
     """Part (b): per (target, mask source) case, each method's summed error and sample count per bin."""
     sources = {name: read_c3d(root / name) for name in MASK_SOURCES}
@@ -214,53 +283,12 @@ def bench_occlusion(root: Path, window_s: float, seed: int, targets: tuple[str, 
                             full.fps, full.name)  # fmt: skip
             mask = transplant_mask(source, truth, length, rng)
             noisy = Markers(truth.points, ~mask, truth.labels, truth.fps, truth.name)
-            fills, cpu, gaps = method_fills(noisy)
-            scored = ~noisy.visible & np.isfinite(fills["auto"]).all(axis=2)
-            seconds = gap_seconds(noisy.visible, noisy.fps)
-            case = {
-                "target": target_name,
-                "mask_source": source_name,
-                "frames": length,
-                "markers": noisy.n_markers,
-                "missing_share": float(mask.mean()),
-                "gaps": len(gaps),
-                "gaps_filled_by_auto": sum(g["status"] == "filled" for g in gaps),
-                "gaps_partly_filled_by_auto": sum(g["status"] == "partly filled" for g in gaps),
-                "unfilled_samples_in_end_gaps": sum(
-                    b - a + 1
-                    for g in gaps
-                    if g["first_frame"] == 0 or g["last_frame"] == length - 1
-                    for a, b in g["unfilled_spans"]
-                ),  # fmt: skip
-                "auto_methods": {m: sum(g["method"] == m for g in gaps) for m in ("rigid", "pca", "spline", "lerp")},
-                "missing_samples": int(mask.sum()),
-                "scored_samples": int(scored.sum()),
-                "cpu_s": cpu,
-                "bins": {},
-            }
-            auto_err = np.linalg.norm(fills["auto"] - truth.points, axis=-1)
-            for name, fill in fills.items():
-                left = scored & ~np.isfinite(fill).all(axis=2)
-                fill = flat(lerp_fill, fill, np.isfinite(fill).all(axis=2)) if left.any() else fill
-                err = np.linalg.norm(fill - truth.points, axis=-1)
-                for (lo, hi), bin_name in zip(BINS, BIN_NAMES):
-                    sel = scored & (seconds > lo) & (seconds <= hi)
-                    own = sel & ~left
-                    case["bins"].setdefault(bin_name, {})[name] = {
-                        "sum_cm": float(err[sel].sum()),
-                        "n": int(sel.sum()),
-                        "lerp_backfilled": int((left & sel).sum()),
-                        "own_sum_cm": float(err[own].sum()),
-                        "auto_on_own_sum_cm": float(auto_err[own].sum()),
-                    }
-                case.setdefault("all_missing_mean_cm", {})[name] = (
-                    float(np.nanmean(err[~noisy.visible])) if name != "auto" else None
-                )
+            case = score_case(truth, noisy, {"target": target_name, "mask_source": source_name})
             cases.append(case)
             if progress:
                 print(f"  {Path(target_name).name} x {Path(source_name).name}: {length} frames, "
                       f"{case['missing_share']:.0%} missing, auto filled {case['gaps_filled_by_auto']}/{case['gaps']} "
-                      f"gaps, {sum(cpu.values()):.1f} s", file=sys.stderr, flush=True)  # fmt: skip
+                      f"gaps, {sum(case['cpu_s'].values()):.1f} s", file=sys.stderr, flush=True)  # fmt: skip
     held_out = [c for c in cases if c["target"] not in TUNING_TARGETS]
     return {"cases": cases, "summary": summarise(cases), "summary_held_out": summarise(held_out)}
 
@@ -468,6 +496,27 @@ def markdown(report: dict) -> str:
             f"| {Path(c['target']).name} | {Path(c['mask_source']).name} | {c['missing_share']:.0%} | "
             f"{c['gaps_filled_by_auto']}/{c['gaps']} | {sums['auto'] / n:.2f} | {sums[best] / n:.2f} ({best}) |"
         )
+    seg = report["segments"]
+    seg_missing = sum(c["missing_samples"] for c in seg["cases"])
+    seg_scored = sum(c["scored_samples"] for c in seg["cases"])
+    lines += [
+        "",
+        "## (c) Synthetic gaps of `mocapnet.corrupt` on the 41-marker HDM05/CMU takes",
+        "",
+        f"{', '.join(SEGMENT_CORRUPTIONS)} on {', '.join(Path(t).name for t in SEGMENT_TARGETS)} (whole takes, one "
+        f"seed each). auto filled {seg_scored} of {seg_missing} missing samples; scored as in (b).",
+        "",
+        *bins_table(seg["summary"]),
+        "",
+        "| target | corruption | samples auto filled | auto cm | best single cm (method) |",
+        "|---|---|---|---|---|",
+    ]
+    for c in seg["cases"]:
+        sums = {m: sum(c["bins"][b][m]["sum_cm"] for b in BIN_NAMES) for m in METHODS}
+        n = c["scored_samples"]
+        best = min((m for m in METHODS if m != "auto"), key=lambda m: sums[m])
+        cells = f"{sums['auto'] / n:.2f} | {sums[best] / n:.2f} ({best})" if n else "— | —"
+        lines.append(f"| {Path(c['target']).name} | {c['corruption']} | {n}/{c['missing_samples']} | {cells} |")
     lines += ["", report["gapfill_note"], ""]
     return "\n".join(lines)
 
@@ -504,6 +553,7 @@ def main(argv: list[str] | None = None) -> int:
     started, cpu0 = time.time(), time.process_time()
     real = bench_real(args.data_root, not args.quiet)
     occlusion = bench_occlusion(args.data_root, args.window_s, args.seed, tuple(args.targets), not args.quiet)
+    segments = bench_segments(args.data_root, args.seed, not args.quiet)
     import gapfill
 
     report = {
@@ -527,6 +577,7 @@ def main(argv: list[str] | None = None) -> int:
         "(a cluster sharing one measured frame with the target); those gaps count as left missing by it.",
         "real": real,
         "occlusion": occlusion,
+        "segments": segments,
     }
     report["wall_s"] = time.time() - started
     report["cpu_s"] = time.process_time() - cpu0

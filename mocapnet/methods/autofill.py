@@ -8,7 +8,9 @@ whose fill passes the check is kept:
   "rigid body fill" of Vicon and Qualisys). Refused when the partners themselves deviate from their rigid
   configuration by more than ``max_residual_cm`` (1 cm RMS over the gap) — ``max_residual_one_edge_cm``
   (0.5 cm) when only one edge of the gap is measured, since no second edge corrects the drift;
-* ``pca`` — the clip's inter-marker correlations (:mod:`.pca`; skipped where PCA cannot be trusted);
+* ``pca`` — the clip's inter-marker correlations (:mod:`.pca`; skipped where PCA cannot be trusted, and
+  when no marker rigid with the missing one stays in view: with a whole segment missing, PCA filled
+  HDM05/CMU arms and legs worse than a straight line);
 * ``knn`` — nearest poses of a database of clean takes (only when a database is given);
 * ``spline``, ``lerp`` — interpolation in time, only for gaps of at most ``max_interp_s`` seconds (a
   straight line through a long gap passes any speed check and is still made up).
@@ -44,7 +46,7 @@ import numpy as np
 from mocapnet.methods.baselines import lerp_fill, spline_fill
 from mocapnet.methods.pca import fill_remaining_linear, pca_fill
 from mocapnet.methods.registry import MethodContext, build_method, register
-from mocapnet.methods.rigid import distance_stats, gap_runs, rigid_fill_gap, rigid_reach
+from mocapnet.methods.rigid import distance_stats, gap_runs, rigid_fill_gap, rigid_partners, rigid_reach
 from mocapnet.motion import Markers
 
 CANDIDATES = ("rigid", "pca", "knn", "spline", "lerp")
@@ -224,6 +226,10 @@ class _Candidates:
                 return None, {"reason": f"rigid partners deform by {got.residual_cm:.2f} cm RMS > {gate:g} cm"}
             labels = [self.markers.labels[p] for p in got.partners]
             return got.points, {"partners": labels, "fit_residual_cm": round(got.residual_cm, 3)}
+        if name == "pca":
+            rigid_opts = {k: v for k, v in self.rigid_options.items() if k == "max_std_cm"}
+            if not len(rigid_partners(self.visible, self.spread(), marker, start, stop, **rigid_opts)):
+                return None, {"reason": "no marker rigid with it stays in view (its segment is missing)"}
         fill = self.whole(name)[start:stop, marker]
         if not np.isfinite(fill).all():
             why = "PCA cannot be trusted here (too few frames or markers)" if name == "pca" else "no fill"
