@@ -137,7 +137,8 @@ def test_a_fill_that_jumps_falls_back_to_the_next_candidate() -> None:
     (report,) = got.gaps
     assert report["status"] == "unfilled" and not got.filled.any()
     assert [t.split(":")[0] for t in report["tried"]] == ["rigid", "pca", "spline", "lerp"]
-    assert "rigid partners" in report["tried"][0] and all("step ratio" in t for t in report["tried"][1:])
+    assert "rigid partners" in report["tried"][0] and "segment is missing" in report["tried"][1]
+    assert all("step ratio" in t for t in report["tried"][2:])
     ok = auto_fill(noisy)
     assert ok.gaps[0]["method"] in ("pca", "spline") and ok.gaps[0]["ratio"] <= 2.0
 
