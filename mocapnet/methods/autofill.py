@@ -57,7 +57,7 @@ NEED_BOTH_EDGES = ("pca", "knn", *INTERPOLATORS)
 # Relational check (the constraint matrix of mocapnet.methods.extrapolate, as bounds): in a fill, the
 # distance to every visible marker must stay within the range measured between the two, widened on each side
 # by BOUND_SLACK of its width plus BOUND_TOLERANCE_CM (occlusions happen in unusual poses: a tight bound
-# refused correct 4-frame fills of the tennis serve's shoulder).
+# refused correct 4-frame fills of the tennis serve's shoulder), for at least two markers.
 BOUND_TOLERANCE_CM = 2.0
 BOUND_SLACK = 0.25
 _MIN_MEASURED_STEPS = 10  # a marker with fewer measured steps is compared with the largest of all markers
@@ -170,7 +170,7 @@ class _Candidates:
     def bounds_violation(self, fill: np.ndarray, marker: int, start: int, stop: int) -> float:
         """How far (cm) a fill ``[stop - start, 3]`` of ``marker`` leaves the range of distances measured
         between it and each other marker (widened by ``BOUND_SLACK`` of its width), where that marker is
-        visible (0: never)."""
+        visible: the second largest over the markers (0: never)."""
         self.spread()
         low, high = self._low[marker], self._high[marker]
         near = np.isfinite(low)
@@ -180,8 +180,11 @@ class _Candidates:
         others = self.points[start:stop][:, near]  # [L, K, 3], NaN where not visible
         d = np.linalg.norm(others - fill[:, None], axis=-1)
         slack = BOUND_SLACK * (high[near] - low[near])
-        over = np.fmax(low[near] - slack - d, d - high[near] - slack)
-        return float(np.nanmax(over, initial=0.0)) if np.isfinite(over).any() else 0.0
+        over = np.fmax(low[near] - slack - d, d - high[near] - slack)  # [L, K], NaN where not visible
+        worst = np.sort(np.nanmax(np.where(np.isnan(over), -np.inf, over), axis=0))[::-1]  # per marker
+        # The second worst marker decides: one visible marker out of place (a swapped or ghost sample)
+        # does not veto a fill that agrees with all the others.
+        return float(max(worst[min(1, len(worst) - 1)], 0.0))
 
     def whole(self, name: str) -> np.ndarray:
         if name not in self._whole:
