@@ -8,6 +8,7 @@ the truth (degrees), ``angvel [B, T, 3]`` the root angular velocity (rad/s).
 
 from __future__ import annotations
 
+import math
 from abc import ABC, abstractmethod
 from typing import Any
 
@@ -112,7 +113,7 @@ class CleanerModule(L.LightningModule, ABC):
         if fraction < warm:
             return lr * (0.1 + 0.9 * fraction / warm)
         floor = lr / 50.0
-        return floor + 0.5 * (lr - floor) * (1.0 + np.cos(np.pi * (fraction - warm) / (1.0 - warm)))
+        return floor + 0.5 * (lr - floor) * (1.0 + math.cos(math.pi * (fraction - warm) / (1.0 - warm)))
 
     def on_train_batch_start(self, batch: Any, batch_idx: int) -> None:
         if self.hparams.get("lr_schedule", "plateau") != "cosine":

@@ -8,8 +8,8 @@ checkpoints (weights, hyper-parameters, normaliser; no optimiser state), still l
 ``EBF.load_from_checkpoint``.
 
 Checkpoints are data, never code: every load goes through ``read_checkpoint``, which uses
-``torch.load(weights_only=True)`` (tensors, numbers, strings, lists, dicts and nothing else: PyTorch's
-restricted unpickler, extended by no global) and refuses anything else with ``MocapFileError``. A shipped
+``torch.load(weights_only=True)`` (tensors, numbers, strings, lists, dicts: PyTorch's restricted unpickler,
+extended only by ``ALLOWED_GLOBALS``, numpy scalars) and refuses anything else with ``MocapFileError``. A shipped
 checkpoint is also checked against the SHA-256 recorded for it in ``index.json``.
 
 Export a trained run::
@@ -29,6 +29,7 @@ from os import PathLike
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import torch
 
 from mocapnet.io.atomic import MocapFileError
@@ -37,6 +38,10 @@ from mocapnet.nn.features import topology_hash
 
 CHECKPOINT_DIR = Path(__file__).resolve().parents[1] / "checkpoints"
 INDEX = CHECKPOINT_DIR / "index.json"
+#: The allow-list: what a checkpoint may hold besides tensors and plain values. Numpy scalars (a dtype and
+#: its bytes; e.g. a learning rate Lightning copied from a numpy computation) are data; nothing else is.
+_MULTIARRAY = np._core.multiarray if hasattr(np, "_core") else np.core.multiarray
+ALLOWED_GLOBALS = [np.dtype, _MULTIARRAY.scalar, *{type(np.dtype(code)) for code in "?bhilqBHILQefdgFDG"}]
 _NORMALISER = ("center", "scale", "angvel_scale")  # buffers kept in float32 by ``export(fp16=True)``
 _KEEP = (
     "state_dict",
@@ -83,7 +88,8 @@ def read_checkpoint(path: str | PathLike) -> dict[str, Any]:
             "or damaged (reinstall mocapnet)"
         )
     try:
-        ckpt = torch.load(src, map_location="cpu", weights_only=True)
+        with torch.serialization.safe_globals(ALLOWED_GLOBALS):
+            ckpt = torch.load(src, map_location="cpu", weights_only=True)
     except pickle.UnpicklingError as exc:
         inner = str(exc.__context__ or exc)
         found = re.search(r"GLOBAL (\S+)", inner)

@@ -181,3 +181,13 @@ def test_export_records_sha256_and_keeps_the_network(fp16, tiny, sample, tmp_pat
     with torch.inference_mode():
         diff = (loaded(x, w) - model(x, w)).abs().max()
     assert float(diff) < (0.05 if fp16 else 1e-5)
+
+
+def test_numpy_scalars_are_allowed_and_arrays_refused(tmp_path):
+    scalar = tmp_path / "scalar.ckpt"
+    torch.save({"lr": np.float64(0.5), "n": np.int64(3)}, scalar)
+    assert read_checkpoint(scalar)["lr"] == 0.5
+    array = tmp_path / "array.ckpt"
+    torch.save({"x": np.zeros(3)}, array)
+    with pytest.raises(MocapFileError, match="refused"):
+        read_checkpoint(array)

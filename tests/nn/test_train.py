@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import hydra
@@ -124,3 +125,22 @@ def test_bad_training_override_is_a_one_line_error(override, tmp_path, monkeypat
     err = capsys.readouterr().err
     assert err.startswith("mocapnet: error: training config:") and err.count("\n") == 1
     assert not (tmp_path / "runs").exists()
+
+
+def test_cosine_schedule_decays_within_the_budget_and_checkpoints_stay_plain(tmp_path):
+    cfg = compose_cfg(
+        [f"runs_root={tmp_path}", "name=cos", "trainer.max_epochs=2", "model.lr_schedule=cosine", "model.lr=0.01"]
+        + QUICK
+        + TINY_MODEL["ebf"]
+    )
+    train(cfg)
+    last = read_checkpoint(tmp_path / "cos" / "checkpoints" / "last.ckpt")
+    lr = last["optimizer_states"][0]["param_groups"][0]["lr"]
+    assert type(lr) is float and 0.01 / 50 <= lr < 0.01
+    model = EBF(6, lr=0.01, lr_schedule="cosine")
+    values = [model.scheduled_lr(f) for f in (0.0, 0.02, 0.5, 1.0)]
+    assert (
+        values[0] < values[1] == pytest.approx(0.01)
+        and values[2] == pytest.approx(0.0002 + 0.0049 * (1 + math.cos(math.pi * 0.48 / 0.98)))
+        and values[3] == 0.0002
+    )
