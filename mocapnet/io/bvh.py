@@ -31,6 +31,7 @@ import io
 import math
 import os
 import re
+import threading
 import warnings
 import zlib
 from collections import deque
@@ -68,6 +69,7 @@ _NAME_BAD_RE = re.compile(r"[{}\x00-\x1f\x7f]")
 _MOTION_LINE_RE = re.compile(rb"^[ \t\x0b\x0c]*MOTION[ \t\x0b\x0c]*$", re.MULTILINE | re.IGNORECASE)
 _HIERARCHY_CACHE: dict[bytes, tuple[Skeleton, float, int, int]] = {}  # HIERARCHY bytes -> parse result
 _HIERARCHY_CACHE_SIZE = 16
+_HIERARCHY_LOCK = threading.Lock()
 _CHANNEL_BY_BYTES = {c.encode(): c for c in CHANNEL_NAMES}
 # Frame time range accepted, seconds: 1 MHz down to one frame an hour.
 _FRAME_TIME_RANGE = (1e-6, 3600.0)
@@ -401,7 +403,8 @@ def _parse_hierarchy(path: Path, lines: _Lines) -> _Hierarchy:
 
 
 def _read_hierarchy(path: Path, lines: _Lines) -> tuple[Skeleton, float]:
-    """The skeleton (unit 1.0) and its guessed unit, from the cache when these exact HIERARCHY bytes were read.
+    """The skeleton (with its guessed unit) and that unit, from the cache when these exact HIERARCHY bytes were
+    read before.
 
     A corpus shares a few skeletons (3 distinct hierarchies among 300 bandai2 files), so the parse result is
     kept by content for the last ``_HIERARCHY_CACHE_SIZE`` hierarchies; the cached skeleton's arrays are
@@ -417,9 +420,10 @@ def _read_hierarchy(path: Path, lines: _Lines) -> tuple[Skeleton, float]:
         skeleton = dataclasses.replace(skeleton, cm_per_unit=unit)
         hit = skeleton, unit, lines.pos, lines.lineno
         if key is not None and lines.pos == motion.end() + 1:
-            while len(_HIERARCHY_CACHE) >= _HIERARCHY_CACHE_SIZE:
-                del _HIERARCHY_CACHE[next(iter(_HIERARCHY_CACHE))]
-            _HIERARCHY_CACHE[key] = hit
+            with _HIERARCHY_LOCK:  # readers may share the cache across threads
+                while len(_HIERARCHY_CACHE) >= _HIERARCHY_CACHE_SIZE:
+                    del _HIERARCHY_CACHE[next(iter(_HIERARCHY_CACHE))]
+                _HIERARCHY_CACHE[key] = hit
     skeleton, unit, lines.pos, lines.lineno = hit
     return skeleton, unit
 
