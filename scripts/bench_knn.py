@@ -10,10 +10,13 @@
 * **Speed**: fill time per second of gap (CPU, one thread) with the whole bandai2 database on bandai1 clips
   with left-arm gaps of 1 to 8 s, and the search time per query frame.
 
-Writes ``benchmarks/results/knn.md`` and ``knn.json``. Example::
+Writes ``benchmarks/results/knn.md`` and ``knn.json``. ``--tune`` instead scores one-at-a-time variations
+of the joint-space settings on bandai2 fold-1 clips (database: bandai2 without fold 1; and, to mimic motion
+the database lacks, also without the clip's content label) and writes ``knn_tuning.md``. Example::
 
-    OMP_NUM_THREADS=1 nice -n 5 .venv/bin/python scripts/bench_knn.py           # about 15 min on 2 cores
-    .venv/bin/python scripts/bench_knn.py --clips 4 --repeats 1 --out /tmp/knn  # smoke run
+    OMP_NUM_THREADS=1 nice -n 5 .venv/bin/python scripts/bench_knn.py           # about 7 min on 2 cores
+    OMP_NUM_THREADS=1 nice -n 5 .venv/bin/python scripts/bench_knn.py --tune    # about 5 min
+    .venv/bin/python scripts/bench_knn.py --clips 4 --out /tmp/knn              # smoke run
 """
 
 from __future__ import annotations
@@ -55,6 +58,20 @@ C3D_FILES = (
 C3D_DATABASE_ONLY = ("c3d/cmu/01_01.c3d", "c3d/cmu/02_01.c3d")  # 02_01 is too short for a 4 s gap
 C3D_METHODS = ("knn", "pca", "lerp", "spline", "gapfill-rbt")
 TIMING_GAPS = (1.0, 2.0, 4.0, 8.0)
+TUNE_CORRUPTIONS = ("segment-gap:left-arm:1", "segment-gap:left-arm:4", "segment-gap:legs:1", "segment-gap:legs:2")
+TUNE_VARIANTS = (
+    {},
+    {"k": 8},
+    {"k": 32},
+    {"speed": 30.0},
+    {"speed": 120.0},
+    {"speed": None},
+    {"distance_gain": 0.0},
+    {"distance_gain": 1.0},
+    {"fallback": "lerp"},
+    {"own": False},
+    {"margin_s": 0.6},
+)
 DONE_WHEN = ("segment-gap:left-arm:1", "segment-gap:left-arm:4", "segment-gap:legs:2")
 
 
@@ -161,6 +178,60 @@ def bench_speed(n_clips: int) -> dict:
             frames = int(mask.any(axis=1).sum())
             points.append({"gap_s": s, "cpu_s": stats.total_s, "search_s": stats.search_s, "frames": frames})
     return {"database": db.describe(), "load_s": load_s, "clips": len(clips), "points": points}
+
+
+def tune(n_clips: int, out: Path) -> str:
+    """Mean gap error (degrees) and position error (cm) of each variation of ``ANGLE_DEFAULTS`` on bandai2
+    fold-1 clips of at least 7 s, as a markdown table written to ``out``."""
+    from mocapnet.corpus import content_label
+    from mocapnet.evaluate import metrics
+    from mocapnet.methods.baselines import lerp_fill
+
+    db = cached_database("bandai2")
+    searcher = Searcher(db.points, db.clip, db.describe())
+    _, _, val = load_corpus("bandai2", progress=False).split(1)
+    long = [m for m in val if m.duration >= 7.0]
+    clips = [long[i] for i in np.linspace(0, len(long) - 1, min(n_clips, len(long))).round().astype(int)]
+    held_out = [m.name for m in val]
+    results: dict[tuple, list] = {}
+    for m in clips:
+        same_content = [n for n in db.names if content_label(n) == content_label(m.name)]
+        for corruption in TUNE_CORRUPTIONS:
+            rng = np.random.default_rng(seed_for("bandai2", m.name, 0, corruption))
+            noisy, mask = corrupt_motion(m, corruption, rng)
+            outs = {("lerp", mode): lerp_fill(noisy, mask) for mode in ("in", "out")}
+            for v, variant in enumerate(TUNE_VARIANTS):
+                settings = WindowSettings(**{**ANGLE_DEFAULTS, **variant})
+                for mode, exclude in (("in", held_out), ("out", held_out + same_content)):
+                    outs[(v, mode)] = fill_angles(m.with_channels(noisy), mask, db, settings, exclude, searcher)[0]
+            for key, ch in outs.items():
+                results.setdefault(key + (corruption,), []).append(
+                    (metrics.gap_err_deg(ch, m.channels, mask), metrics.pos_err_cm(m, ch))
+                )
+    names = ["lerp"] + [", ".join(f"{k}={v}" for k, v in variant.items()) or "defaults" for variant in TUNE_VARIANTS]
+    lines = [
+        f"# Joint-space knn settings on bandai2 fold 1 ({len(clips)} clips of at least 7 s, 1 repeat)",
+        "",
+        f"Defaults: `{WindowSettings(**ANGLE_DEFAULTS)}`. Command: `python scripts/bench_knn.py --tune`. Each cell: "
+        "RMS gap error (degrees) / whole-body position error (cm). *in*: database = bandai2 without fold 1; "
+        "*out*: also without every clip of the scored clip's content label (motion the database lacks).",
+        "",
+        "| variant | "
+        + " | ".join(f"{c.split(':', 1)[1]} {mode}" for mode in ("in", "out") for c in TUNE_CORRUPTIONS)
+        + " |",
+        "|---" * (1 + 2 * len(TUNE_CORRUPTIONS)) + "|",
+    ]
+    for key, name in zip(["lerp", *range(len(TUNE_VARIANTS))], names):
+        cells = []
+        for mode in ("in", "out"):
+            for c in TUNE_CORRUPTIONS:
+                vals = np.array(results[(key, mode, c)])
+                cells.append(f"{np.sqrt(np.mean(vals[:, 0] ** 2)):.2f} / {vals[:, 1].mean():.3f}")
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    text = "\n".join(lines) + "\n"
+    with atomic_output(out) as tmp:
+        tmp.write_text(text)
+    return text
 
 
 def _mean(rows: list[dict], key: str) -> float:
@@ -279,7 +350,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--clips", type=int, default=60, help="BVH clips per corpus (default 60)")
     parser.add_argument("--repeats", type=int, default=1, help="repeats per clip and corruption (default 1)")
     parser.add_argument("--out", type=Path, default=REPO / "benchmarks" / "results", help="output folder")
+    parser.add_argument("--tune", action="store_true", help="score setting variations on bandai2 fold 1 instead")
     args = parser.parse_args(argv)
+    if args.tune:
+        print(tune(20, args.out / "knn_tuning.md"))
+        return 0
     root = data_root()
     missing = [
         f
