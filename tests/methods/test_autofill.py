@@ -236,3 +236,18 @@ def test_default_clean_of_every_gapped_shared_take_is_plausible(tmp_path, take) 
 def test_gap_runs() -> None:
     assert gap_runs(np.array([1, 1, 0, 1, 0, 0, 1], dtype=bool)) == [(0, 2), (3, 4), (6, 7)]
     assert gap_runs(np.zeros(4, dtype=bool)) == []
+
+
+def test_knn_is_a_candidate_only_with_a_database() -> None:
+    path = SHARED / "c3d" / "cmu" / "85_02.c3d"
+    if not path.exists():
+        pytest.skip(f"shared data not found at {path}")
+    clip = read_c3d(path)
+    visible = clip.visible.copy()
+    visible[300:360, clip.index("RSHO")] = False
+    noisy = Markers(clip.points, visible, clip.labels, clip.fps, clip.name)
+    without = auto_fill(noisy, order=("knn", "lerp"))
+    assert not any(t.startswith("knn") for g in without.gaps for t in g["tried"])
+    (report,) = auto_fill(noisy, database=path.parent, order=("knn",)).gaps
+    assert report["method"] == "knn" or report["tried"][0].startswith("knn: ")
+    assert report["method"] != "knn" or report["ratio"] <= 2.0
