@@ -46,7 +46,14 @@ import numpy as np
 from mocapnet.methods.baselines import lerp_fill, spline_fill
 from mocapnet.methods.pca import fill_remaining_linear, pca_fill
 from mocapnet.methods.registry import MethodContext, build_method, register
-from mocapnet.methods.rigid import distance_stats, gap_runs, rigid_fill_gap, rigid_partners, rigid_reach
+from mocapnet.methods.rigid import (
+    distance_stats,
+    gap_runs,
+    measured_edges,
+    rigid_fill_gap,
+    rigid_partners,
+    rigid_reach,
+)
 from mocapnet.motion import Markers
 
 CANDIDATES = ("rigid", "pca", "knn", "spline", "lerp")
@@ -209,10 +216,7 @@ class _Candidates:
         """The candidate ``name``'s fill ``[stop - start, 3]`` of one gap and facts about it, or None and
         ``{"reason": ...}``."""
         if name == "rigid":
-            one_edge = (
-                len([r for r in (start - 1, stop) if 0 <= r < len(self.visible) and self.visible[r, marker]]) == 1
-            )
-            gate = self.max_residual_cm[0 if one_edge else 1]
+            gate = self.max_residual_cm[len(measured_edges(self.visible, marker, start, stop)) > 1]
             got = rigid_fill_gap(
                 self.points,
                 self.visible,
@@ -260,8 +264,8 @@ def auto_fill(
     max_residual_cm: float = 1.0,
     max_residual_one_edge_cm: float = 0.5,
 ) -> AutoFill:
-    """Fill each gap of ``markers`` with the first candidate of ``order`` whose fill passes the step check
-    (module docstring), leaving the gap missing when none does.
+    """Fill each gap of ``markers`` with the first candidate of ``order`` whose fill passes the checks
+    (module docstring), else with rigid pieces from its measured edges, leaving the rest missing.
 
     Parameters
     ----------
@@ -280,9 +284,11 @@ def auto_fill(
     Returns
     -------
     :class:`AutoFill`; each gap report holds ``marker``, ``marker_index``, ``first_frame`` and
-    ``last_frame`` (0-based, inclusive), ``frames``, ``seconds``, ``status`` (``filled``/``unfilled``),
-    ``method``, ``ratio`` (the plausibility figure; null when unfilled), ``tried`` (why earlier candidates
-    were refused) and, for rigid fills, ``partners`` and ``fit_residual_cm``.
+    ``last_frame`` (0-based take frames, inclusive), ``frames``, ``seconds``, ``status`` (``filled``,
+    ``partly filled`` or ``unfilled``), ``method``, ``ratio`` (the plausibility figure of what was filled;
+    null when nothing was), ``filled_frames``, ``unfilled_spans`` (``[first, last]`` frame pairs left
+    missing), ``tried`` (why candidates were refused) and, for rigid fills, ``partners`` and
+    ``fit_residual_cm``.
     """
     unknown = [c for c in order if c not in CANDIDATES]
     if unknown:

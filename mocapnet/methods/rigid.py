@@ -99,8 +99,9 @@ class RigidFill:
     edges: int
 
 
-def _measured_edges(visible: np.ndarray, marker: int, start: int, stop: int) -> list[int]:
-    """The frames ``start - 1`` and ``stop`` that exist and where ``marker`` is measured."""
+def measured_edges(visible: np.ndarray, marker: int, start: int, stop: int) -> list[int]:
+    """The frames ``start - 1`` and ``stop`` (the edges of a gap ``[start, stop)``) that exist in
+    ``visible [T, M]`` and where ``marker`` is measured."""
     return [r for r in (start - 1, stop) if 0 <= r < len(visible) and visible[r, marker]]
 
 
@@ -116,7 +117,7 @@ def rigid_partners(
     """Indices of the markers that stay rigid with ``marker`` (distance spread ≤ ``max_std_cm``) and are
     visible in every frame from ``start`` to ``stop - 1`` and at the edges where ``marker`` is measured,
     most rigid first."""
-    edges = _measured_edges(visible, marker, start, stop)
+    edges = measured_edges(visible, marker, start, stop)
     lo, hi = min([start, *edges]), max([stop - 1, *edges]) + 1
     through = visible[lo:hi].all(axis=0)
     through[marker] = False
@@ -184,7 +185,7 @@ def rigid_fill_gap(
     ``max_residual_cm`` and more than ``min_partners`` remain, the partner that deviates most is dropped and
     the fit repeated. None when no edge is measured or fewer than ``min_partners`` non-collinear rigid
     partners are visible throughout."""
-    edges = _measured_edges(visible, marker, start, stop)
+    edges = measured_edges(visible, marker, start, stop)
     if not edges:
         return None
     partners = rigid_partners(visible, spread, marker, start, stop, max_std_cm, max_partners)
