@@ -503,9 +503,10 @@ def plot_fills(
 @register(
     "auto",
     "points",
-    help="per gap: rigid-body, pca, knn (with database=), spline or lerp, the first whose fill passes the step "
-    "check (worst filled step <= limit x the marker's largest measured step); gaps nothing fills plausibly are "
-    "interpolated linearly with a warning here (mocapnet clean leaves them missing)",
+    help="per gap: rigid-body, pca, knn (with database=), spline or lerp, the first whose fill passes the checks "
+    "(worst filled step <= limit x the marker's largest measured step, distances to the other markers within "
+    "their measured ranges, rigid partners rigid); gaps nothing fills plausibly are interpolated linearly with "
+    "a warning here (mocapnet clean leaves them missing); options database, limit, max_interp_s, spline_first_s",
 )
 def _auto(
     context: MethodContext,
