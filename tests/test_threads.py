@@ -43,13 +43,14 @@ def test_pin_threads_sets_env_and_loaded_pools(restore_threads, monkeypatch):
 
 
 def test_workers_are_pinned(restore_threads):
-    """A worker process runs its tasks with the threads asked for (here 3; the default is 1)."""
-    got = map_tasks(os.environ.get, ["OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "x"],
+    """A worker process runs its tasks with the threads asked for (here 3; the default is 1). (``os.getenv``
+    pickles by name, so it reads the worker's environment.)"""
+    got = map_tasks(os.getenv, ["OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "x"],
                     parallel=Parallel(workers=1, threads=3))  # fmt: skip
     assert got == ["3", "3", "3", None]
 
 
 def test_in_process_library_call_leaves_threads_alone(restore_threads):
     threads.pin_threads(2)
-    assert map_tasks(os.environ.get, ["OMP_NUM_THREADS"], parallel=Parallel(workers=0)) == ["2"]
-    assert map_tasks(os.environ.get, ["OMP_NUM_THREADS"], parallel=Parallel(workers=0, threads=1)) == ["1"]
+    assert map_tasks(os.getenv, ["OMP_NUM_THREADS"], parallel=Parallel(workers=0)) == ["2"]
+    assert map_tasks(os.getenv, ["OMP_NUM_THREADS"], parallel=Parallel(workers=0, threads=1)) == ["1"]
