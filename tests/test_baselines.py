@@ -132,3 +132,15 @@ def test_gaussian_tuned_can_tune_on_another_corpus(shared):
     method = build_method("gaussian-tuned:tune_on=bandai2,max_clips=20", MethodContext(corruption="angular-0.5"))
     sigmas = method.clean.sigmas_s
     assert sigmas.shape == (132,) and (sigmas > 0).any()
+
+
+def test_every_registered_method_is_found_without_importing_its_module_first():
+    """Each method name is in the registry's lazy table (a fresh process can build it by name alone), and
+    every module that registers it is listed."""
+    from mocapnet.methods.registry import _LAZY, _modules, available
+
+    entries = available()
+    missing = sorted({e.name for e in entries} - set(_LAZY))
+    assert not missing, f"add to registry._LAZY: {missing}"
+    for e in entries:
+        assert e.factory.__module__ in _modules(e.name), (e.name, e.space, e.factory.__module__)

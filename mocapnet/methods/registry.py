@@ -121,8 +121,9 @@ class Method:
 
 
 _REGISTRY: dict[str, dict[str, MethodEntry]] = {}  # name -> space -> entry
-# Methods defined in modules that are imported only when asked for (keeps torch out of `import mocapnet`).
-_LAZY: dict[str, str] = {
+# Methods defined in modules that are imported only when asked for (keeps torch out of `import mocapnet`); a
+# name registered in several modules (e.g. knn in points and in angles) lists them all.
+_LAZY: dict[str, str | tuple[str, ...]] = {
     "noisy": "mocapnet.methods.baselines",
     "gaussian-58ms": "mocapnet.methods.baselines",
     "gaussian-125ms": "mocapnet.methods.baselines",
@@ -135,11 +136,14 @@ _LAZY: dict[str, str] = {
     "extrapolate+cm": "mocapnet.methods.extrapolate",
     "extrapolate-linear": "mocapnet.methods.extrapolate",
     "extrapolate-circular": "mocapnet.methods.extrapolate",
-    "knn": "mocapnet.methods.knn",
-    "pca": "mocapnet.methods.knn",
+    "knn": ("mocapnet.methods.knn", "mocapnet.methods.knn_angles"),
+    "pca": "mocapnet.methods.pca",
     "rigid": "mocapnet.methods.rigid",
     "auto": "mocapnet.methods.autofill",
     "ebf": "mocapnet.methods.neural",
+    "ebf-paper": "mocapnet.methods.neural",
+    "ebf-bias": "mocapnet.methods.neural",
+    "ebf-free": "mocapnet.methods.neural",
     "ebd": "mocapnet.methods.neural",
     "ebd+ebf": "mocapnet.methods.neural",
     "bf": "mocapnet.methods.neural",
@@ -180,7 +184,7 @@ def parse_method(text: str | MethodSpec) -> tuple[str, dict[str, Any]]:
 
 def available() -> list[MethodEntry]:
     """Every registered method and space (imports the lazy modules that can be imported)."""
-    for module in sorted(set(_LAZY.values())):
+    for module in sorted({m for name in _LAZY for m in _modules(name)}):
         try:
             importlib.import_module(module)
         except ImportError:
@@ -188,10 +192,16 @@ def available() -> list[MethodEntry]:
     return [spec for name in sorted(_REGISTRY) for spec in _REGISTRY[name].values()]
 
 
+def _modules(name: str) -> tuple[str, ...]:
+    """The modules that register ``name`` (none when it is not lazy)."""
+    found = _LAZY.get(name, ())
+    return (found,) if isinstance(found, str) else found
+
+
 def spaces_of(name: str) -> tuple[str, ...]:
     """The spaces (``"angles"``, ``"points"``) a method name is registered for."""
-    if name in _LAZY:
-        importlib.import_module(_LAZY[name])
+    for module in _modules(name):
+        importlib.import_module(module)
     if name not in _REGISTRY:
         known = sorted(set(_REGISTRY) | set(_LAZY))
         raise KeyError(f"unknown method {name!r}; known methods: {', '.join(known)}")
