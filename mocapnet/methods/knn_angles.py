@@ -42,14 +42,15 @@ from typing import Any
 import numpy as np
 
 from mocapnet.kinematics import inverse_kinematics, joint_positions
-from mocapnet.methods import knn_database  # a module import: knn_database and knn import each other
 from mocapnet.methods.baselines import lerp_fill
-from mocapnet.methods.knn import _runs, edge_seconds
+from mocapnet.methods.knn import _runs
+from mocapnet.methods.knn_database import SkeletonDatabase, cached_database, default_corpus
 from mocapnet.methods.knn_window import (
     _KERNEL_EPS2,
     FillStats,
     Searcher,
     WindowSettings,
+    edge_seconds,
     fill_run,
     gather,
     neighbour_windows,
@@ -127,7 +128,7 @@ def pca_angles(motion: Motion, mask: np.ndarray, base: np.ndarray, visible: np.n
 def fill_angles(
     motion: Motion,
     mask: np.ndarray,
-    db: knn_database.SkeletonDatabase,
+    db: SkeletonDatabase,
     settings: WindowSettings | None = None,
     exclude: Iterable[str] = (),
     searcher: Searcher | None = None,
@@ -193,7 +194,7 @@ def fill_angles(
 
 
 def angle_filler(
-    db: knn_database.SkeletonDatabase, settings: WindowSettings, exclude: Iterable[str] = ()
+    db: SkeletonDatabase, settings: WindowSettings, exclude: Iterable[str] = ()
 ) -> Callable[[Motion, np.ndarray], np.ndarray]:
     """``clean(noisy, mask) -> [T, C]`` for the harness, with one searcher shared by every call."""
     searcher = Searcher(db.points, db.clip, db.describe())
@@ -226,13 +227,11 @@ def _knn_angles(
     def clean(noisy: Motion, mask: np.ndarray) -> np.ndarray:
         key = noisy.skeleton.topology()
         if key not in built:
-            corpus = database or knn_database.default_corpus(noisy.skeleton)
+            corpus = database or default_corpus(noisy.skeleton)
             if corpus is not None:
-                db = knn_database.cached_database(corpus)
+                db = cached_database(corpus)
             elif context.train:
-                db = knn_database.SkeletonDatabase.from_motions(
-                    list(context.train), source=context.corpus or "training clips"
-                )
+                db = SkeletonDatabase.from_motions(list(context.train), source=context.corpus or "training clips")
             else:
                 raise ValueError(
                     f"{noisy.name or 'motion'}: knn found no corpus of this skeleton; give database=<folder>"

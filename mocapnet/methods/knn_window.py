@@ -1,29 +1,36 @@
 """The window search and fill shared by the joint-space (``knn_angles``) and point-space (``knn``) kNN
 gap fillers: nearest windows of stored motion, per-neighbour continuity correction, blend with
-interpolation. See the ``knn_angles`` module docstring for the method."""
+interpolation. See the ``knn_angles`` module docstring for the method. Imports nothing of mocapnet."""
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from mocapnet.methods.baselines import lerp_fill
-from mocapnet.methods.knn import (
-    MotionDatabase,
-    _runs,
-    _up_index,
-    blend_weight,
-    body_frames,
-    denormalise,
-    edge_seconds,
-    normalise,
-)
-from mocapnet.motion import Markers
-
 _KERNEL_EPS2 = 1e-6  # cm², ε² of the kernel weight 1 / (d² + ε²)
 _ROW_BLOCK = 16  # query poses per matrix product (bounds memory to 16 · N / step floats)
+
+
+def edge_seconds(missing: np.ndarray, fps: float) -> np.ndarray:
+    """Seconds from every sample of ``missing [T, K]`` (True = missing) to the nearest observed sample of its
+    column: 0 where observed, inf in a column with no observed sample."""
+    n = len(missing)
+    t = np.broadcast_to(np.arange(n)[:, None], missing.shape)
+    last = np.maximum.accumulate(np.where(missing, -1, t), axis=0)
+    after = np.minimum.accumulate(np.where(missing, n, t)[::-1], axis=0)[::-1]
+    gap = np.minimum(np.where(last >= 0, t - last, np.inf), np.where(after < n, after - t, np.inf))
+    return gap / fps
+
+
+def blend_weight(spread: np.ndarray, seconds: np.ndarray, speed: float) -> np.ndarray:
+    """Weight of the kNN estimate against interpolation, ``1 / (1 + (spread / (speed · seconds))²)``: 0 at an
+    observed sample, towards 1 far from it where the neighbours agree (small ``spread``). ``speed`` (units
+    of ``spread`` per second) is how fast interpolation's error is taken to grow with the distance
+    ``seconds`` to the nearest observed sample. A NaN spread (no neighbours asked) counts as agreement."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = np.nan_to_num(spread, nan=0.0) / (speed * seconds)
+    return 1.0 / (1.0 + np.nan_to_num(ratio, nan=0.0, posinf=np.inf) ** 2)
 
 
 @dataclass
@@ -207,74 +214,3 @@ def gather(
     out[:, ~from_own] = stored[rows[:, ~from_own]]
     out[:, from_own] = own[rows[:, from_own]]
     return out
-
-
-def fill_markers(
-    markers: Markers,
-    database: MotionDatabase,
-    settings: WindowSettings | None = None,
-    exclude: str | None = None,
-) -> tuple[np.ndarray, FillStats]:
-    """Fill the missing samples of ``markers`` (points ``[T, M, 3]`` cm) from the nearest windows of the
-    database's full-rate poses (normalised as in ``knn``) and, with ``settings.own``, of the take's own fully
-    visible frames; each coordinate is filled like a channel in ``knn_angles`` (``speed`` and the spread in
-    cm). Points near the gap weigh ``1 + near_gain / max(1, d / 10 cm)`` (d: distance to the nearest missing
-    point at the gap's edge). ``exclude``: clip left out of the database (default ``markers.name``).
-    Returns points ``[T, M, 3]`` (observed samples unchanged) and stats. Raises ValueError naming the file
-    when the database lacks a point with missing samples."""
-    t_start = time.process_time()
-    settings = settings or WindowSettings()
-    if settings.fallback != "lerp":
-        raise ValueError(f"knn: point data falls back to lerp only, got fallback={settings.fallback!r}")
-    stats = FillStats()
-    name = markers.name or "markers"
-    cols = database.checked_columns(markers)
-    missing = ~markers.visible
-    n_t, n_m = missing.shape
-    up = _up_index(database.up, markers.points)
-    origin, rot = body_frames(markers.points, markers.visible, markers.labels, database.anchors, up, name)
-    local = normalise(markers.points, origin, rot)
-    base = lerp_fill(local.reshape(n_t, 3 * n_m), np.repeat(missing, 3, axis=1)).reshape(n_t, n_m, 3)
-    out = base.copy()
-    mapped = np.flatnonzero(cols >= 0)
-    level = database.levels[0]
-    skip = markers.name if exclude is None else exclude
-    allowed = level.valid[:, cols[mapped]].all(axis=1) & np.array([c != skip for c in database.clip_names])[level.clip]
-    searcher = Searcher(level.positions[:, cols[mapped]], level.clip, database.describe())
-    complete = ~missing.any(axis=1)
-    own = Searcher(base[:, mapped], np.zeros(n_t, dtype=int), f"{name} itself") if settings.own else None
-    stride = max(1, int(round(markers.fps / settings.query_hz)))
-    margin = max(1, int(round(settings.margin_s * markers.fps)))
-    seconds = edge_seconds(missing, markers.fps)
-    for a, b in _runs(missing.any(axis=1)):
-        stats.gaps += 1
-        unknown = np.flatnonzero(missing[a:b].any(axis=0))  # indices into markers (all mapped)
-        edge = a - 1 if a > 0 else min(b, n_t - 1)
-        near = np.linalg.norm(base[edge, mapped][:, None] - base[edge, unknown][None], axis=-1).min(axis=1)
-        gain = 1.0 + settings.near_gain / np.maximum(1.0, near / 10.0)
-        w0, w1 = max(0, a - margin), min(n_t, b + margin)
-        grid = np.arange(w0, w1, stride)
-        w = markers.visible[np.ix_(grid, mapped)] * gain
-        t0 = time.process_time()
-        d2, starts, from_own = neighbour_windows(
-            searcher, own, base[np.ix_(grid, mapped)], w, grid - w0, w1 - w0, allowed, complete, settings.k
-        )
-        stats.search_s += time.process_time() - t0
-        kernel = 1.0 / (d2 + _KERNEL_EPS2)
-        kernel /= kernel.sum()
-        rms = float(np.sqrt((kernel * d2).sum() / w.sum()))
-        stats.distance.append(rms)
-        lo, hi = max(a - 1, 0), min(b, n_t - 1)
-        span = np.arange(lo, hi + 1)
-        traj = gather(level.positions[:, cols[unknown]], base[:, unknown], starts, from_own, span - w0)  # [S, k, U, 3]
-        for u, m in enumerate(unknown):
-            for c0, c1 in _runs(missing[lo : hi + 1, m]):
-                run = (c0 + lo, c1 + lo)
-                for c in range(3):
-                    fill_run(
-                        out[:, m, c], base[:, m, c], traj[:, :, u, c], kernel, seconds[:, m], lo, run, rms, settings
-                    )
-    result = markers.points.copy()
-    result[missing] = denormalise(out, origin, rot)[missing]
-    stats.total_s = time.process_time() - t_start
-    return result, stats

@@ -26,11 +26,13 @@ from mocapnet.methods.knn import (
     downsample,
     edge_seconds,
     fill_gaps,
+    fill_markers,
     normalise,
     upsample,
 )
 from mocapnet.methods.knn_angles import fill_angles, wrap
 from mocapnet.methods.knn_database import SkeletonDatabase, cached_database, default_corpus
+from mocapnet.methods.knn_window import WindowSettings
 from mocapnet.methods.pca import pca_fill
 from mocapnet.motion import Markers, Motion
 
@@ -377,3 +379,14 @@ def test_registered_knn_fills_bvh_in_joint_space(parts, tmp_path) -> None:
 def test_default_database_is_the_largest_corpus_of_the_skeleton(shared) -> None:
     bandai = read_bvh(list_bvh(shared / "bvh" / "bandai_namco_1")[0])
     assert default_corpus(bandai.skeleton) == "bandai2"
+
+
+def test_window_search_on_points_is_exact_with_the_truth_in_the_database(walk, database) -> None:
+    noisy = corrupt_markers(walk, "segment-gap:left-arm:1", np.random.default_rng(3))
+    out, stats = fill_markers(noisy, database, WindowSettings(own=False))
+    assert stats.gaps == 1 and np.array_equal(out[noisy.visible], walk.points[noisy.visible])
+    assert np.linalg.norm(out - walk.points, axis=-1)[~noisy.visible].max() < 1e-3
+    method = build_method(
+        "knn:search=window", MethodContext(train=[synthetic_walk(phase=1.0, name="o")]), space="points"
+    )
+    assert np.isfinite(method.clean(noisy)).all()
