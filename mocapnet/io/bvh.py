@@ -114,25 +114,49 @@ def _read_bytes(path: Path, max_bytes: int) -> bytes:
                 if nul >= 0:
                     _binary_error(path, [raw], nul)
                 return raw
-            chunks: list[bytes] = []
-            total = 0
-            with gzip.GzipFile(fileobj=fh, mode="rb") as gz:
-                while chunk := gz.read(_CHUNK):
-                    nul = chunk.find(b"\0")
-                    if nul >= 0:
-                        _binary_error(path, chunks + [chunk], total + nul)
-                    total += len(chunk)
-                    if total > max_bytes:
-                        raise MocapFileError(
-                            f"{path}: decompresses to more than the {max_bytes:,}-byte limit for a BVH file"
-                        )
-                    if not chunks:
-                        _check_start(path, chunk)
-                    chunks.append(chunk)
+            if os.fstat(fh.fileno()).st_size > max_bytes:
+                raise MocapFileError(f"{path}: larger than the {max_bytes:,}-byte limit for a BVH file")
+            return _inflate(path, fh.read(), max_bytes)
     except FileNotFoundError:
         raise MocapFileError(f"{path}: no such file") from None
-    except (OSError, EOFError, zlib.error) as exc:
+    except OSError as exc:
         raise MocapFileError(f"{path}: cannot read ({type(exc).__name__}: {str(exc)[:80]})") from None
+
+
+def _inflate(path: Path, data: bytes, max_bytes: int) -> bytes:
+    """Decompress gzip ``data`` (one or more members) 1 MiB at a time: stop at the first NUL byte, at a
+    start that is not BVH text, or beyond ``max_bytes``; damaged or truncated data is a ``MocapFileError``."""
+    chunks: list[bytes] = []
+    total = 0
+    inflater = zlib.decompressobj(16 + zlib.MAX_WBITS)
+    try:
+        while True:
+            chunk = inflater.decompress(data, _CHUNK)
+            data = inflater.unconsumed_tail
+            if chunk:
+                nul = chunk.find(b"\0")
+                if nul >= 0:
+                    _binary_error(path, chunks + [chunk], total + nul)
+                total += len(chunk)
+                if total > max_bytes:
+                    raise MocapFileError(
+                        f"{path}: decompresses to more than the {max_bytes:,}-byte limit for a BVH file"
+                    )
+                if not chunks:
+                    _check_start(path, chunk)
+                chunks.append(chunk)
+            elif inflater.eof:
+                data = inflater.unused_data
+                if data[:2] == b"\x1f\x8b":  # another gzip member
+                    inflater = zlib.decompressobj(16 + zlib.MAX_WBITS)
+                elif data.strip(b"\0"):
+                    raise MocapFileError(f"{path}: bytes after the end of the gzip data (damaged file?)")
+                else:
+                    break
+            else:
+                raise MocapFileError(f"{path}: compressed data ends early (truncated file?)")
+    except zlib.error as exc:
+        raise MocapFileError(f"{path}: cannot read (damaged gzip data: {str(exc)[:80]})") from None
     return b"".join(chunks)
 
 

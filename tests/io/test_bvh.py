@@ -440,12 +440,23 @@ def test_damaged_gzip_is_a_file_error(tmp_path):
         "crc.bvh.gz": data[:-8] + bytes(4) + data[-4:],  # CRC-32 mismatch
         "header.bvh.gz": b"\x1f\x8b\x09" + data[3:],  # unknown compression method
         "notgzip.bvh.gz": GOOD.encode(),
+        "junk.bvh.gz": bytes(data) + b"junk",  # bytes after the last member
+        "cut.bvh.gz": bytes(data[:-5]),
     }
     for name, content in cases.items():
         (tmp_path / name).write_bytes(bytes(content))
         with pytest.raises(MocapFileError) as err:
             read_bvh(tmp_path / name)
         assert str(tmp_path / name) in str(err.value)
+    # harmless: several gzip members, zero padding after the data, gzip without the .gz suffix
+    half = GOOD.index("0 91")
+    for name, content in [
+        ("members.bvh.gz", gzip.compress(GOOD[:half].encode()) + gzip.compress(GOOD[half:].encode())),
+        ("padded.bvh.gz", gzip.compress(GOOD.encode()) + bytes(64)),
+        ("magic.bvh", gzip.compress(GOOD.encode())),
+    ]:
+        (tmp_path / name).write_bytes(content)
+        assert read_bvh(tmp_path / name).n_frames == 3
 
 
 def test_huge_line_is_named_without_huge_memory(tmp_path):
