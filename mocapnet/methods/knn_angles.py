@@ -154,7 +154,7 @@ def fill_angles(
     joint_missing = np.stack([mask[:, sk.joint_channels(j)].any(axis=1) for j in range(sk.n_joints)], axis=1)
     weights = points_visible(sk, joint_missing).astype(np.float32)
     feats = db.reference.points(sk, base, motion.fps, motion.name)
-    skip = set(exclude) | {motion.name}
+    skip = set(exclude) | {motion.name, motion.name.split("#")[0]}  # "clip#test": a time split of "clip"
     allowed = np.array([n not in skip for n in db.names])[db.clip]
     stride = max(1, int(round(motion.fps / settings.query_hz)))
     margin = max(1, int(round(settings.margin_s * motion.fps)))
@@ -220,7 +220,9 @@ def _knn_angles(
     """``knn`` for BVH data. The database is ``database`` (corpus name or folder of BVH files) or else the
     largest corpus of the input's skeleton under the data root, or else ``context.train``. When the
     database is the corpus being scored, only its training clips (``context.train``) are used; the clip
-    being filled (same name) is always left out. The database is built on the first call."""
+    being filled (same name, or the clip it was cut from: ``clip#test`` leaves out ``clip``) is always
+    left out, and a one-clip corpus that is only the input itself gives way to ``context.train``. The
+    database is built on the first call."""
     settings = WindowSettings(**{**ANGLE_DEFAULTS, **options})  # an unknown option: TypeError, see build_method
     built: dict[tuple, Callable[[Motion, np.ndarray], np.ndarray]] = {}
 
@@ -228,11 +230,12 @@ def _knn_angles(
         key = noisy.skeleton.topology()
         if key not in built:
             corpus = database or default_corpus(noisy.skeleton)
-            if corpus is not None:
-                db = cached_database(corpus)
-            elif context.train:
+            db = cached_database(corpus) if corpus is not None else None
+            if db is not None and set(db.names) <= {noisy.name, noisy.name.split("#")[0]}:
+                db = None  # a one-clip corpus (cmu120) whose clip is the input: nothing else to learn from
+            if db is None and context.train:
                 db = SkeletonDatabase.from_motions(list(context.train), source=context.corpus or "training clips")
-            else:
+            if db is None:
                 raise ValueError(
                     f"{noisy.name or 'motion'}: knn found no corpus of this skeleton; give database=<folder>"
                 )
