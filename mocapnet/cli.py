@@ -39,8 +39,10 @@ examples:
   mocapnet clean archive/ -o cleaned/ --report cleaned/report.csv  # a folder (recursing), on all local cores
   mocapnet clean archive/ -o cleaned/ --method gaussian-58ms --scheduler tcp://10.0.0.5:8786
 
-The output is written only when cleaning succeeded, never over the input. C3D output holds the markers
-(analog channels and model outputs are not copied).
+The output is written only when cleaning succeeded, never over the input, and only with the input's format
+(.bvh/.bvh.gz or .c3d, any case). C3D output is the input file with only the filled samples changed (residual
+0 = computed): every other point, analog channel, event, parameter and the header stay as they were. Gaps
+that no filler fills plausibly stay missing and are listed in the report.
 
 A folder: every .bvh, .bvh.gz and .c3d under it (recursing) is cleaned to the same relative path under the
 output folder, each exactly as the one-file clean would do it, in parallel on Dask worker processes (one per
