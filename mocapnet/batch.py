@@ -15,9 +15,13 @@ import time
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from mocapnet.clean import CleanOptions, CleanResult, clean_file, file_format
 from mocapnet.io.atomic import MocapFileError, atomic_output
+
+if TYPE_CHECKING:
+    from mocapnet.parallel import Parallel
 
 REPORT_FIELDS = ("file", "output", "status", "method", "frames", "samples_filled", "seconds", "error")
 CLEANED, UP_TO_DATE, FAILED = "cleaned", "up to date", "failed"
@@ -111,7 +115,7 @@ def clean_folder(
     src_dir: str | os.PathLike,
     out_dir: str | os.PathLike,
     options: CleanOptions,
-    parallel=None,
+    parallel: Parallel | None = None,
     force: bool = False,
     progress: bool = True,
 ) -> list[FileReport]:

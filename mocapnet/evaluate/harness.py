@@ -12,6 +12,7 @@ import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -24,6 +25,9 @@ from mocapnet.io.c3d import read_c3d
 from mocapnet.kinematics import global_transforms, inverse_kinematics, local_rotations, motion_points
 from mocapnet.methods.registry import Method, MethodContext, MethodSpec, build_method, spaces_of
 from mocapnet.motion import Markers, Motion
+
+if TYPE_CHECKING:
+    from mocapnet.parallel import Parallel
 
 ROW_FIELDS = (
     "method",
@@ -154,7 +158,7 @@ def _points_method_as_angles(method: Method):
 
 
 def _scored_chunks(
-    score: Callable, clips: Sequence, shared: tuple, parallel, progress: bool, corruption: Corruption
+    score: Callable, clips: Sequence, shared: tuple, parallel: Parallel | None, progress: bool, corruption: Corruption
 ) -> tuple[list[dict], list[tuple[str, str]]]:
     """Run ``score(chunk, *shared) -> (rows, skipped)`` over chunks of ``clips`` (in this process, or on Dask
     with ``parallel``) and concatenate the results in clip order."""
@@ -230,7 +234,7 @@ def evaluate_angles(
     methods: Sequence[str | MethodSpec],
     repeats: int,
     progress: bool = True,
-    parallel=None,
+    parallel: Parallel | None = None,
 ) -> tuple[list[dict], list[tuple[str, str]]]:
     """Score angle-space methods (and point methods through IK) on ``clips``; returns rows and skipped.
 
@@ -302,7 +306,7 @@ def evaluate_points(
     repeats: int,
     corpus: str,
     progress: bool = True,
-    parallel=None,
+    parallel: Parallel | None = None,
 ) -> tuple[list[dict], list[tuple[str, str]]]:
     """Score point methods on marker clips under a ``segment-gap``/``marker-gap`` corruption.
 
@@ -335,7 +339,7 @@ def evaluate(
     progress: bool = True,
     corpus: Corpus | None = None,
     style: str | None = None,
-    parallel=None,
+    parallel: Parallel | None = None,
 ) -> Evaluation:
     """Score ``methods`` on ``data`` under ``corruption`` (see module docstring).
 
