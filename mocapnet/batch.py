@@ -13,7 +13,7 @@ import json
 import os
 import time
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -125,11 +125,23 @@ def clean_folder(
 
     if options.mask:
         raise ValueError("--mask names one file's missing samples; it cannot be used when cleaning a folder")
-    pairs = plan(src_dir, out_dir)
+    # Absolute paths: workers of a cluster started elsewhere do not share this working directory.
+    pairs = plan(Path(src_dir).absolute(), Path(out_dir).absolute())
+    options = _absolute_paths(options)
     todo = [p for p in pairs if force or not is_up_to_date(*p)]
     done = map_tasks(clean_one, todo, (options,), parallel or Parallel(), progress, "cleaning", "file")
     by_pair = dict(zip(todo, done))
     return [by_pair.get(p) or FileReport(str(p[0]), str(p[1]), UP_TO_DATE) for p in pairs]
+
+
+def _absolute_paths(options: CleanOptions) -> CleanOptions:
+    """``options`` with its existing database folder and checkpoint files made absolute."""
+
+    def absolute(text: str | None) -> str | None:
+        return str(Path(text).absolute()) if text and Path(text).exists() else text
+
+    model = ",".join(absolute(m.strip()) or "" for m in options.model.split(",")) if options.model else None
+    return replace(options, model=model, database=absolute(options.database))
 
 
 def report_format(path: str | os.PathLike) -> str:

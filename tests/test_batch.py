@@ -160,3 +160,11 @@ def test_outputs_inside_the_input_folder_are_not_inputs(archive, tmp_path):
     clean_folder(src, src / "cleaned", CleanOptions(method="lerp"), Parallel(workers=0), progress=False)
     assert len(plan(src, src / "cleaned")) == 6  # a rerun does not take its outputs for inputs
     assert len(plan(src, tmp_path / "elsewhere")) == 12  # elsewhere, in/cleaned/* are recordings like any
+
+
+def test_relative_paths_are_made_absolute_for_workers_elsewhere(archive, tmp_path, monkeypatch):
+    shutil.copytree(archive, tmp_path / "in")
+    monkeypatch.chdir(tmp_path)
+    reports = clean_folder("in", "out", CleanOptions(method="lerp"), Parallel(workers=0), progress=False)
+    assert all(Path(r.file).is_absolute() and Path(r.output).is_absolute() for r in reports)
+    assert sorted(p.name for p in (tmp_path / "out").rglob("*.bvh*")) == sorted(p.name for p in archive.rglob("*.bvh*"))
