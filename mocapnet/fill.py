@@ -21,6 +21,8 @@ def gaussian_smooth(channels: np.ndarray, sigma_s: float | np.ndarray, fps: floa
     Edges are padded with the nearest value. ``sigma_s = 0`` returns the input.
     """
     sig = np.broadcast_to(np.asarray(sigma_s, dtype=np.float64) * fps, (channels.shape[1],))
+    if sig.size and sig[0] > 0 and (sig == sig[0]).all():  # one σ for every channel: one filter call, no copy
+        return gaussian_filter1d(np.asarray(channels, dtype=np.float64), sigma=sig[0], axis=0, mode="nearest")
     out = channels.astype(np.float64, copy=True)
     for value in np.unique(sig):
         if value <= 0:

@@ -236,7 +236,9 @@ def geodesic_deg(rot_a: np.ndarray, rot_b: np.ndarray) -> np.ndarray:
     ``atan2(sin, cos)`` of the relative rotation (sin from its skew part, cos from its trace): accurate to
     rounding at every angle, where ``arccos`` of the trace loses half the digits near 0° (1e-6° off).
     """
-    # rel = rot_a^T rot_b: trace(rel) = Σ a∘b; its skew part (rel - rel^T) is minus the sum of the rows' cross products
+    # rel = rot_a^T rot_b: trace(rel) = Σ a∘b; its skew part is minus Σ_k (row k of a) × (row k of b)
     cos = ((rot_a * rot_b).sum(axis=(-2, -1)) - 1.0) / 2.0
-    skew = np.cross(rot_a, rot_b).sum(axis=-2)
-    return np.degrees(np.arctan2(np.linalg.norm(skew, axis=-1) / 2.0, cos))
+    a0, a1, a2 = rot_a[..., 0], rot_a[..., 1], rot_a[..., 2]
+    b0, b1, b2 = rot_b[..., 0], rot_b[..., 1], rot_b[..., 2]
+    s0, s1, s2 = (a1 * b2 - a2 * b1).sum(-1), (a2 * b0 - a0 * b2).sum(-1), (a0 * b1 - a1 * b0).sum(-1)
+    return np.degrees(np.arctan2(np.sqrt(s0 * s0 + s1 * s1 + s2 * s2) / 2.0, cos))
