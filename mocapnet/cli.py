@@ -123,7 +123,7 @@ def _clean(args: argparse.Namespace) -> int:
         if result.details.get("gaps"):
             from mocapnet.methods.autofill import summary_table
 
-            print(summary_table(result.details["gaps"]))
+            print(summary_table(result.details["gaps"], first_frame=result.details.get("file_first_frame", 0)))
         if args.plot:
             print(f"wrote {args.plot}")
         if args.report:

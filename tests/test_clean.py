@@ -110,3 +110,15 @@ def test_cli_errors_are_one_line_exit_2_and_write_nothing(tmp_path, short_bvh, c
         err = capsys.readouterr().err.strip()
         assert err.startswith("mocapnet: error:") and "\n" not in err, err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["mask.npy", "walk.bvh"]
+
+
+def test_c3d_report_numbers_frames_as_the_file_does(tmp_path):
+    from mocapnet.io.c3d_raw import read_layout
+    from mocapnet.methods.autofill import summary_table
+    from tests.conftest import SAMPLE_C3D_NAN
+
+    result = clean_file(SAMPLE_C3D_NAN, tmp_path / "out.c3d", CleanOptions())
+    assert result.details["file_first_frame"] == read_layout(SAMPLE_C3D_NAN).first_frame
+    gap = {"marker": "M1", "method": None, "ratio": None, "filled_frames": 0, "unfilled_spans": [[10, 19]]}
+    gap["tried"] = ["rigid: fewer than 3 partners"]
+    assert "frames 1377-1386 (10 frames)" in summary_table([gap], first_frame=1367)

@@ -422,10 +422,10 @@ def describe_fill(markers: Markers, result: np.ndarray, method: str) -> list[dic
     return gaps
 
 
-def summary_table(gaps: Sequence[dict], limit: float = 2.0, shown: int = 8) -> str:
+def summary_table(gaps: Sequence[dict], limit: float = 2.0, shown: int = 8, first_frame: int = 0) -> str:
     """A short text table of per-gap reports: per method the gaps it filled (wholly or in part), samples and
     worst step ratio; the gaps with samples left missing; then the ``shown`` longest missing spans with the
-    reasons the first candidates gave."""
+    reasons the first candidates gave, numbered as in the file (take frame 0 is file frame ``first_frame``)."""
     lines = [f"{'method':14s} {'gaps':>6s} {'samples':>8s} {'worst step ratio':>17s}"]
     methods = [*CANDIDATES, *sorted({g["method"] for g in gaps if g["method"]} - set(CANDIDATES))]
     for name in methods:
@@ -443,7 +443,7 @@ def summary_table(gaps: Sequence[dict], limit: float = 2.0, shown: int = 8) -> s
     spans = sorted(((b - a + 1, a, b, g) for g in left for a, b in g["unfilled_spans"]), key=lambda x: -x[0])
     for n, a, b, g in spans[:shown]:
         why = "; ".join(g["tried"][:2]) or "no candidate"
-        lines.append(f"  missing {g['marker']} frames {a}-{b} ({n} frames): {why}")
+        lines.append(f"  missing {g['marker']} frames {a + first_frame}-{b + first_frame} ({n} frames): {why}")
     if len(spans) > shown:
         lines.append(f"  … and {len(spans) - shown} shorter spans left missing")
     return "\n".join(lines)
