@@ -543,6 +543,26 @@ def _parse_fixed_point(text: bytes, n_channels: int, start: int = 0) -> np.ndarr
     return value.reshape(-1, n_channels)
 
 
+def _parse_fixed_point_in_blocks(
+    text: bytes, n_channels: int, start: int = 0, block_bytes: int = 1 << 23
+) -> np.ndarray | None:
+    """``_parse_fixed_point`` over blocks of whole lines of about ``block_bytes``, so its index arrays (~10
+    bytes per text byte) stay small: peak memory ~ the frames plus a block's work, not ~12x the file."""
+    if len(text) - start <= block_bytes:
+        return _parse_fixed_point(text, n_channels, start)
+    parts = []
+    pos = start
+    while pos < len(text):
+        end = text.find(b"\n", min(pos + block_bytes, len(text) - 1))
+        end = len(text) if end < 0 else end + 1
+        part = _parse_fixed_point(text[pos:end], n_channels)
+        if part is None:
+            return None
+        parts.append(part)
+        pos = end
+    return np.concatenate(parts)
+
+
 def _parse_general(body: bytes, n_channels: int) -> np.ndarray | None:
     """``[T, n_channels]`` frames through ``numpy.loadtxt``, or None when the text does not parse."""
     if not body.isascii() or any(separator in body for separator in _INFO_SEPARATORS):
@@ -730,7 +750,7 @@ def _parse(raw: bytes, path: Path, cm_per_unit: float | None, unwrap: bool) -> M
         raise MocapFileError(f"{path}:{frames_line}: the hierarchy declares no CHANNELS, yet frames follow")
     if len(raw) - start > (raw.count(b"\n", start) + 1) * (64 * n_ch + 1024):  # some line is far too long
         _check_long_lines(path, raw[start:], first_line, n_ch)
-    data = _parse_fixed_point(raw, n_ch, start)
+    data = _parse_fixed_point_in_blocks(raw, n_ch, start)
     if data is None:
         body = raw[start:]
         data = _parse_general(body, n_ch)

@@ -513,3 +513,16 @@ def test_fixed_point_and_general_paths_agree():
         slow = np.loadtxt(io.StringIO(text.decode()), ndmin=2)
         np.testing.assert_array_equal(fast, slow)
         np.testing.assert_array_equal(np.signbit(fast), np.signbit(slow))
+
+
+def test_fixed_point_in_blocks_equals_one_pass(cmu):
+    from mocapnet.io.bvh import _parse_fixed_point, _parse_fixed_point_in_blocks
+
+    text = format_bvh(cmu.with_channels(cmu.channels[:300])).encode()
+    start = text.index(b"\n", text.index(b"Frame Time")) + 1
+    whole = _parse_fixed_point(text, cmu.skeleton.n_channels, start)
+    for block in (1, 500, 4096, 1 << 20):
+        blocks = _parse_fixed_point_in_blocks(text, cmu.skeleton.n_channels, start, block_bytes=block)
+        assert blocks is not None and np.array_equal(blocks, whole), block
+    damaged = text[:-30] + b"1e5 " + text[-26:]
+    assert _parse_fixed_point_in_blocks(damaged, cmu.skeleton.n_channels, start, block_bytes=500) is None
