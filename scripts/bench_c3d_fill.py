@@ -47,12 +47,13 @@ from mocapnet.evaluate.benchmark import (  # noqa: E402
     git_commit,
     numpy_int_alias,
 )
+from mocapnet.fill import runs as gap_runs  # noqa: E402
 from mocapnet.io.atomic import MocapFileError, atomic_output  # noqa: E402
 from mocapnet.io.c3d import read_c3d  # noqa: E402
 from mocapnet.methods.autofill import auto_fill, fill_plausibility  # noqa: E402
 from mocapnet.methods.baselines import lerp_fill, spline_fill  # noqa: E402
 from mocapnet.methods.pca import pca_fill  # noqa: E402
-from mocapnet.methods.rigid import gap_runs, rigid_fill  # noqa: E402
+from mocapnet.methods.rigid import rigid_fill  # noqa: E402
 from mocapnet.motion import Markers  # noqa: E402
 
 MASK_SOURCES = (

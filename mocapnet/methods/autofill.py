@@ -43,12 +43,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from mocapnet.fill import runs
 from mocapnet.methods.baselines import lerp_fill, spline_fill
 from mocapnet.methods.pca import fill_remaining_linear, pca_fill
 from mocapnet.methods.registry import MethodContext, build_method, register
 from mocapnet.methods.rigid import (
     distance_stats,
-    gap_runs,
     measured_edges,
     rigid_fill_gap,
     rigid_partners,
@@ -334,7 +334,7 @@ def auto_fill(
 
     for m in np.flatnonzero(~visible.all(axis=0)):
         m = int(m)
-        for start, stop in gap_runs(~visible[:, m]):
+        for start, stop in runs(~visible[:, m]):
             report = gap_report(markers, m, start, stop)
             gaps.append(report)
             if not visible[:, m].any():
@@ -401,7 +401,7 @@ def _finish(report: dict, filled: np.ndarray, start: int) -> None:
     """Set a report's status, filled frame count and unfilled spans (first, last; inclusive) from ``filled``
     (the gap's frames, True where filled)."""
     report["filled_frames"] = int(filled.sum())
-    report["unfilled_spans"] = [[start + a, start + b - 1] for a, b in gap_runs(~filled)]
+    report["unfilled_spans"] = [[start + a, start + b - 1] for a, b in runs(~filled)]
     report["status"] = "filled" if filled.all() else "partly filled" if filled.any() else "unfilled"
 
 
@@ -412,7 +412,7 @@ def describe_fill(markers: Markers, result: np.ndarray, method: str) -> list[dic
     have = np.isfinite(result).all(axis=2)
     gaps = []
     for m in np.flatnonzero(~markers.visible.all(axis=0)):
-        for start, stop in gap_runs(~markers.visible[:, m]):
+        for start, stop in runs(~markers.visible[:, m]):
             report = gap_report(markers, int(m), start, stop)
             _finish(report, have[start:stop, m], start)
             if report["filled_frames"]:

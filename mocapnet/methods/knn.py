@@ -77,6 +77,7 @@ from scipy.optimize import minimize
 from scipy.spatial import cKDTree
 
 from mocapnet.corrupt import motion_markers
+from mocapnet.fill import runs
 from mocapnet.methods.baselines import lerp_fill, spline_fill
 from mocapnet.methods.knn_window import (
     _KERNEL_EPS2,
@@ -445,12 +446,6 @@ def _up_index(up: str, points: np.ndarray) -> int:
     return "xyz".index(up)
 
 
-def _runs(flags: np.ndarray) -> list[tuple[int, int]]:
-    """``[start, stop)`` of every run of True in a 1-D boolean array."""
-    edges = np.diff(np.concatenate([[0], flags.astype(np.int8), [0]]))
-    return list(zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)))
-
-
 @dataclass
 class FillReport:
     """What ``fill_gaps`` did: gaps filled, samples left unfilled (``(label, first, last, reason)``, frames
@@ -623,7 +618,7 @@ def fill_gaps(
     if max_gap_s is not None:
         limit = int(round(max_gap_s * markers.fps))
         for m in np.flatnonzero(todo.any(axis=0)):
-            for a, b in _runs(todo[:, m]):
+            for a, b in runs(todo[:, m]):
                 if b - a > limit:
                     todo[a:b, m] = False
                     report.unfilled.append((markers.labels[m], int(a), int(b - 1), f"longer than {max_gap_s:g} s"))
@@ -636,7 +631,7 @@ def fill_gaps(
     )
     excluded = markers.name if exclude is None else exclude
     keep_clip = np.array([not excluded or c != excluded for c in database.clip_names])
-    for a, b in _runs(todo.any(axis=1)):
+    for a, b in runs(todo.any(axis=1)):
         unknown = np.flatnonzero(todo[a:b].any(axis=0))
         features = np.flatnonzero(usable & markers.visible[a:b].all(axis=0))
         if features.size == 0:
@@ -810,7 +805,7 @@ def fill_markers(
     stride = max(1, int(round(markers.fps / settings.query_hz)))
     margin = max(1, int(round(settings.margin_s * markers.fps)))
     seconds = edge_seconds(missing, markers.fps)
-    for a, b in _runs(missing.any(axis=1)):
+    for a, b in runs(missing.any(axis=1)):
         stats.gaps += 1
         unknown = np.flatnonzero(missing[a:b].any(axis=0))  # indices into markers (all mapped)
         edge = a - 1 if a > 0 else min(b, n_t - 1)
@@ -832,7 +827,7 @@ def fill_markers(
         span = np.arange(lo, hi + 1)
         traj = gather(level.positions[:, cols[unknown]], base[:, unknown], starts, from_own, span - w0)  # [S, k, U, 3]
         for u, m in enumerate(unknown):
-            for c0, c1 in _runs(missing[lo : hi + 1, m]):
+            for c0, c1 in runs(missing[lo : hi + 1, m]):
                 run = (c0 + lo, c1 + lo)
                 for c in range(3):
                     fill_run(

@@ -41,9 +41,9 @@ from typing import Any
 
 import numpy as np
 
+from mocapnet.fill import runs
 from mocapnet.kinematics import inverse_kinematics, joint_positions
 from mocapnet.methods.baselines import lerp_fill
-from mocapnet.methods.knn import _runs
 from mocapnet.methods.knn_database import SkeletonDatabase, cached_database, default_corpus
 from mocapnet.methods.knn_window import (
     _KERNEL_EPS2,
@@ -163,7 +163,7 @@ def fill_angles(
     complete = ~smask.any(axis=1)
     anchor = pca_angles(motion, mask, base, points_visible(sk, joint_missing)) if settings.fallback == "pca" else base
     own = Searcher(feats, np.zeros(n_t, dtype=int), f"{motion.name} itself") if settings.own else None
-    for a, b in _runs(smask.any(axis=1)):
+    for a, b in runs(smask.any(axis=1)):
         stats.gaps += 1
         unknown = np.flatnonzero(smask[a:b].any(axis=0))  # indices into scored_cols
         gain = 1.0 + settings.near_gain / np.maximum(hop_distances(sk, np.flatnonzero(joint_missing[a:b].any(0))), 1)
@@ -185,7 +185,7 @@ def fill_angles(
         stats.distance.append(rms)
         for u, c in enumerate(cols):
             near = base[span, c][:, None] + wrap(traj[:, :, u] - base[span, c][:, None])  # [S, k] degrees
-            for c0, c1 in _runs(mask[lo : hi + 1, c]):
+            for c0, c1 in runs(mask[lo : hi + 1, c]):
                 run = (c0 + lo, c1 + lo)
                 fill_run(out[:, c], base[:, c], near, kernel, seconds[:, c], lo, run, rms, settings, anchor[:, c])
     out[~mask] = motion.channels[~mask]

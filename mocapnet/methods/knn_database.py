@@ -19,8 +19,6 @@ arrays; an entry whose checksum does not match (or that cannot be read) is rebui
 
 from __future__ import annotations
 
-import hashlib
-import os
 import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
@@ -29,17 +27,13 @@ from pathlib import Path
 import numpy as np
 
 from mocapnet.corpus import CORPORA, cache_dir, data_root, list_bvh, load_corpus
-from mocapnet.kinematics import joint_positions
+from mocapnet.kinematics import joint_positions, point_labels
 from mocapnet.methods.knn import body_frames, detect_anchors, normalise, up_axis
 from mocapnet.motion import Motion, Skeleton
+from mocapnet.safe_cache import CacheError, content_hash, read_cache, write_cache
 
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
 _ARRAYS = ("channels", "points", "clip", "names", "translations", "offsets", "end_sites", "labels", "up", "fps")
-
-
-def point_labels(skeleton: Skeleton) -> list[str]:
-    """Labels of the points of ``joint_positions(..., end_sites=True)``: joint names, then ``<parent>_end<e>``."""
-    return list(skeleton.names) + [f"{skeleton.names[p]}_end{e}" for e, p in enumerate(skeleton.end_parents)]
 
 
 def translation_columns(skeleton: Skeleton) -> np.ndarray:
@@ -136,26 +130,19 @@ class SkeletonDatabase:
         }
 
     def save(self, path: Path) -> None:
-        """Write an ``.npz`` (no pickled objects) with a checksum of its arrays, atomically."""
-        arrays = self._arrays()
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-        with open(tmp, "wb") as fh:
-            np.savez(fh, checksum=np.array(_checksum(arrays)), source=np.array(self.source), **arrays)
-        os.replace(tmp, path)
+        """Write an ``.npz`` (no pickled objects) with a checksum, atomically (``mocapnet.safe_cache``); a cache
+        folder that cannot be written only costs a warning."""
+        write_cache(path, self._arrays(), {"source": self.source})
 
     @classmethod
     def load(cls, path: Path) -> SkeletonDatabase:
         """Read a database written by ``save``. Raises ValueError naming the file when it cannot be read or
         its checksum does not match its arrays (a damaged or tampered entry)."""
-        try:
-            with np.load(path, allow_pickle=False) as npz:
-                arrays = {k: npz[k] for k in _ARRAYS}
-                checksum, source = str(npz["checksum"]), str(npz["source"])
-        except (OSError, KeyError, ValueError, EOFError) as exc:
-            raise ValueError(f"{path}: not a readable knn database ({exc})") from exc
-        if _checksum(arrays) != checksum:
-            raise ValueError(f"{path}: checksum mismatch (file damaged or modified)")
+        stored, meta = read_cache(path)
+        missing = [k for k in _ARRAYS if k not in stored]
+        if missing or not isinstance(meta.get("source"), str):
+            raise CacheError(f"{path}: not a knn database (missing {missing or ['source']})")
+        arrays, source = {k: stored[k] for k in _ARRAYS}, meta["source"]
         ref = Reference(arrays["offsets"], arrays["end_sites"], arrays["translations"], int(arrays["up"]))
         return cls(
             arrays["channels"],
@@ -180,22 +167,9 @@ class SkeletonDatabase:
         return f"{self.source or 'database'}: {len(self.names)} clips, {len(self.clip)} frames"
 
 
-def _checksum(arrays: dict[str, np.ndarray]) -> str:
-    h = hashlib.sha256()
-    for key in _ARRAYS:
-        a = np.ascontiguousarray(arrays[key])
-        h.update(f"{key}|{a.dtype.str}|{a.shape}".encode())
-        h.update(a.tobytes())
-    return h.hexdigest()
-
-
 def content_key(files: Sequence[Path]) -> str:
     """SHA-256 (24 hex digits) of the format version and the names and bytes of ``files``."""
-    h = hashlib.sha256(f"knn-db-v{FORMAT_VERSION}".encode())
-    for f in files:
-        h.update(f.name.encode())
-        h.update(f.read_bytes())
-    return h.hexdigest()[:24]
+    return content_hash(files, salt=f"knn-db-v{FORMAT_VERSION}")[:24]
 
 
 def cached_database(corpus: str, motions: Sequence[Motion] | None = None) -> SkeletonDatabase:

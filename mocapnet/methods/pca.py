@@ -35,17 +35,12 @@ from collections.abc import Callable
 
 import numpy as np
 
+from mocapnet.fill import runs
 from mocapnet.methods.baselines import lerp_fill
 from mocapnet.methods.registry import MethodContext, register
 from mocapnet.motion import Markers
 
 _DISTANCE_FRAMES = 500
-
-
-def _runs(flags: np.ndarray) -> list[tuple[int, int]]:
-    """``[start, stop)`` of every run of True in a 1-D boolean array."""
-    edges = np.diff(np.concatenate([[0], flags.astype(np.int8), [0]]))
-    return list(zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)))
 
 
 def mean_distances(points: np.ndarray, visible: np.ndarray, markers: np.ndarray) -> np.ndarray:
@@ -189,7 +184,7 @@ def fill_remaining_linear(markers: Markers, points: np.ndarray, why: str) -> np.
     if not gaps.any():
         return points
     for m in np.flatnonzero(gaps.any(axis=0)):
-        spans = ", ".join(f"{a}-{b - 1}" for a, b in _runs(gaps[:, m]))
+        spans = ", ".join(f"{a}-{b - 1}" for a, b in runs(gaps[:, m]))
         warnings.warn(
             f"{markers.name or 'markers'}: {why}; marker {markers.labels[m]} frames {spans} filled by linear "
             "interpolation",

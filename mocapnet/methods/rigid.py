@@ -25,6 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from mocapnet.fill import runs
 from mocapnet.methods.registry import MethodContext, register
 from mocapnet.motion import Markers
 
@@ -32,12 +33,6 @@ _SPREAD_FRAMES = 1000  # at most this many evenly spaced frames enter the distan
 _MIN_TOGETHER = 10  # frames two markers must share for their distance spread to count
 _MIN_SPREAD_CM = 1.0  # partners whose second singular value at an edge is smaller are collinear
 _WEIGHT_FLOOR_CM = 0.5  # partner weights 1 / (spread² + floor²): no partner dominates on noise alone
-
-
-def gap_runs(missing: np.ndarray) -> list[tuple[int, int]]:
-    """``[start, stop)`` of every run of True in a 1-D boolean array."""
-    edges = np.diff(np.concatenate([[0], missing.astype(np.int8), [0]]))
-    return list(zip(np.flatnonzero(edges == 1).tolist(), np.flatnonzero(edges == -1).tolist()))
 
 
 def distance_stats(points: np.ndarray, visible: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -211,7 +206,7 @@ def rigid_fill(points: np.ndarray, visible: np.ndarray, max_std_cm: float = 2.0,
     out = points.copy()
     spread = distance_spread(points, visible)
     for m in np.flatnonzero(~visible.all(axis=0)):
-        for start, stop in gap_runs(~visible[:, m]):
+        for start, stop in runs(~visible[:, m]):
             fill = rigid_fill_gap(points, visible, spread, int(m), start, stop, max_std_cm, max_partners)
             if fill is not None:
                 out[start:stop, m] = fill.points

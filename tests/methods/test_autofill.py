@@ -12,6 +12,7 @@ from scipy.spatial.transform import Rotation
 
 from mocapnet.clean import CleanOptions, clean_file
 from mocapnet.cli import main
+from mocapnet.fill import runs
 from mocapnet.io.c3d import read_c3d
 from mocapnet.methods.autofill import (
     auto_fill,
@@ -22,7 +23,7 @@ from mocapnet.methods.autofill import (
     summary_table,
 )
 from mocapnet.methods.registry import build_method
-from mocapnet.methods.rigid import distance_spread, gap_runs, kabsch, rigid_fill, rigid_fill_gap, rigid_reach
+from mocapnet.methods.rigid import distance_spread, kabsch, rigid_fill, rigid_fill_gap, rigid_reach
 from mocapnet.motion import Markers
 from tests.conftest import SAMPLE_C3D, SAMPLE_C3D_NAN, SHARED
 
@@ -234,8 +235,8 @@ def test_default_clean_of_every_gapped_shared_take_is_plausible(tmp_path, take) 
 
 
 def test_gap_runs() -> None:
-    assert gap_runs(np.array([1, 1, 0, 1, 0, 0, 1], dtype=bool)) == [(0, 2), (3, 4), (6, 7)]
-    assert gap_runs(np.zeros(4, dtype=bool)) == []
+    assert runs(np.array([1, 1, 0, 1, 0, 0, 1], dtype=bool)) == [(0, 2), (3, 4), (6, 7)]
+    assert runs(np.zeros(4, dtype=bool)) == []
 
 
 def test_knn_is_a_candidate_only_with_a_database() -> None:
