@@ -211,8 +211,8 @@ def angle_filler(
     "knn",
     "angles",
     help="kNN in joint space from a large clean database (default: the largest corpus of the skeleton, cached), "
-    "offset-corrected and blended with lerp; options k, shift_s, near_gain, speed, offset, query_hz, "
-    "distance_gain, database",
+    "offset-corrected and blended with the clip's PCA fill; options k, margin_s, near_gain, speed, offset, "
+    "query_hz, distance_gain, own, fallback, max_weight, database",
 )
 def _knn_angles(
     context: MethodContext, database: str | None = None, **options: Any

@@ -53,27 +53,35 @@ class Searcher:
     (clip index of every frame, clips contiguous), ``name`` for error messages."""
 
     def __init__(self, points: np.ndarray, clip: np.ndarray, name: str = "database", step: int = 3, shortlist: int = 4):
-        self.points = np.nan_to_num(points).astype(np.float32)
+        pts = np.asarray(points, dtype=np.float32)
+        # No copy of a clean float32 database (the stored one): only the tables below add memory.
+        self.points = np.nan_to_num(pts) if np.isnan(pts).any() else pts
         self.name = name
         self.step = step
         self.shortlist = shortlist
-        pts = self.points
-        # [3P + P, N]: coordinates and squared norms per point, so one product gives -2 q·x + |x|².
-        self.table = np.concatenate([pts.reshape(len(pts), -1), (pts**2).sum(-1)], axis=1).T
-        self._coarse: dict[int, np.ndarray] = {}
+        self._tables: dict[int, np.ndarray] = {}
         starts = np.flatnonzero(np.diff(clip, prepend=-1) != 0)
         sizes = np.diff(np.append(starts, len(clip)))
         self.last = np.repeat(np.append(starts[1:], len(clip)) - 1, sizes)  # [N]: last frame of each one's clip
 
+    def table(self, step: int) -> np.ndarray:
+        """``[4P, N / step]`` float32, built on first use: coordinates and squared norms per point of every
+        ``step``-th frame, so one matrix product gives ``-2 q·x + |x|²``. Only the steps asked for are kept
+        (normally one: 1/3 of ``points``' size at the default step 3)."""
+        if step not in self._tables:
+            pts = self.points[::step]
+            self._tables[step] = np.ascontiguousarray(
+                np.concatenate([pts.reshape(len(pts), -1), (pts**2).sum(-1)], axis=1).T
+            )
+        return self._tables[step]
+
     def profiles(self, feats: np.ndarray, weights: np.ndarray, step: int) -> np.ndarray:
         """Weighted squared distances ``[F, N / step]`` (cm²) from query poses ``feats [F, P, 3]`` (cm) with
         point weights ``[F, P]`` to every ``step``-th database frame."""
-        if step not in self._coarse:
-            self._coarse[step] = np.ascontiguousarray(self.table[:, ::step])
         f = feats.astype(np.float32)
         w = weights.astype(np.float32)
         lhs = np.concatenate([(-2.0 * f * w[..., None]).reshape(len(f), -1), w], axis=1)
-        out = lhs @ self._coarse[step]
+        out = lhs @ self.table(step)
         out += (w * (f**2).sum(-1)).sum(-1, keepdims=True)
         return out
 
@@ -86,7 +94,7 @@ class Searcher:
         window (multiples of a common stride). A database window starting at frame i is compared pose by
         pose with frames ``i + offsets``; it must lie in one clip with every frame allowed (``allowed [N]``).
         Returns squared distances ``[k]`` (cm², ascending) and start frames ``[k]``."""
-        n_all = self.table.shape[1]
+        n_all = len(self.points)
         start = np.arange(n_all)
         barred = np.concatenate([[0], np.cumsum(~allowed)])  # a window is valid if none of its frames is barred
         valid = (self.last >= start + length - 1) & (barred[np.minimum(start + length, n_all)] == barred[start])
@@ -126,7 +134,9 @@ class WindowSettings:
     neighbours' RMS feature distance per point times this is added (in quadrature) to their spread, so
     motion unlike anything in the database falls back to interpolation; ``own``: windows of the input's own
     fully observed frames compete with the database's (a repeated gesture, a gait cycle); ``fallback``:
-    what the blend falls back to, ``lerp`` or (joint space only) ``pca`` (``knn_angles.pca_angles``)."""
+    what the blend falls back to, ``lerp`` or (joint space only) ``pca`` (``knn_angles.pca_angles``);
+    ``max_weight``: the largest weight the kNN estimate gets against the fallback (1: all of it where the
+    neighbours agree far from the observed frames; 0.5: at most the mean of the two estimates)."""
 
     k: int = 16
     margin_s: float = 0.3
@@ -137,6 +147,11 @@ class WindowSettings:
     distance_gain: float = 0.0
     own: bool = True
     fallback: str = "lerp"
+    max_weight: float = 1.0
+
+    def __post_init__(self) -> None:
+        if self.k < 1 or not 0.0 <= self.max_weight <= 1.0 or self.fallback not in ("lerp", "pca"):
+            raise ValueError(f"knn: k must be >= 1, max_weight in [0, 1], fallback lerp or pca; got {self}")
 
 
 def fill_run(
@@ -172,7 +187,9 @@ def fill_run(
     if settings.speed is None:
         out[t] = est
         return
-    beta = blend_weight(np.hypot(spread, settings.distance_gain * rms), seconds[t], settings.speed)
+    beta = settings.max_weight * blend_weight(
+        np.hypot(spread, settings.distance_gain * rms), seconds[t], settings.speed
+    )
     anchor = base if anchor is None else anchor
     out[t] = anchor[t] + beta * (est - anchor[t])
 

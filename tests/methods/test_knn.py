@@ -32,7 +32,7 @@ from mocapnet.methods.knn import (
 )
 from mocapnet.methods.knn_angles import fill_angles, wrap
 from mocapnet.methods.knn_database import SkeletonDatabase, cached_database, default_corpus
-from mocapnet.methods.knn_window import WindowSettings
+from mocapnet.methods.knn_window import Searcher, WindowSettings, fill_run
 from mocapnet.methods.pca import pca_fill
 from mocapnet.motion import Markers, Motion
 
@@ -390,3 +390,30 @@ def test_window_search_on_points_is_exact_with_the_truth_in_the_database(walk, d
         "knn:search=window", MethodContext(train=[synthetic_walk(phase=1.0, name="o")]), space="points"
     )
     assert np.isfinite(method.clean(noisy)).all()
+
+
+def test_searcher_shares_the_database_points_and_builds_one_coarse_table(parts) -> None:
+    """Memory: a clean float32 database is searched in place; only the table of the step used is added."""
+    db = SkeletonDatabase.from_motions([parts[0], parts[2]])
+    searcher = Searcher(db.points, db.clip, db.describe())
+    assert np.shares_memory(searcher.points, db.points)
+    noisy, mask = _segment_gap(parts[1], "segment-gap:left-arm:1")
+    fill_angles(noisy, mask, db, searcher=searcher)
+    assert list(searcher._tables) == [3] and searcher.table(3).shape == (4 * len(db.labels), -(-len(db.clip) // 3))
+
+
+def test_max_weight_caps_the_knn_share_and_bad_settings_are_refused() -> None:
+    """``max_weight`` 0.5 gives the mean of the kNN estimate and the fallback where the neighbours agree."""
+    n = 20
+    near = np.tile(np.linspace(0.0, 10.0, n)[:, None], (1, 2)) + np.sin(np.arange(n))[:, None] * 4.0  # [S, k]
+    kernel = np.array([0.5, 0.5])
+    seconds = np.full(n, 1e3)  # far from the observed frames: the blend weight is max_weight
+    base, anchor = np.linspace(0.0, 10.0, n), np.full(n, -3.0)
+    full, half = np.zeros(n), np.zeros(n)
+    fill_run(full, base, near, kernel, seconds, 0, (5, 15), 0.0, WindowSettings(speed=60.0), anchor)
+    fill_run(half, base, near, kernel, seconds, 0, (5, 15), 0.0, WindowSettings(speed=60.0, max_weight=0.5), anchor)
+    assert np.allclose(half[5:15], 0.5 * (full[5:15] + anchor[5:15])) and np.abs(full - anchor)[5:15].max() > 1.0
+    assert np.all(half[:5] == 0) and np.all(half[15:] == 0)  # only the run is written
+    for bad in ({"max_weight": 1.5}, {"k": 0}, {"fallback": "spline"}):
+        with pytest.raises(ValueError, match="knn: k must be"):
+            WindowSettings(**bad)
