@@ -567,6 +567,7 @@ class _Settings:
     threshold: float
     inner: int
     offset: bool
+    cluster: int = 0
 
 
 def fill_gaps(
@@ -581,6 +582,7 @@ def fill_gaps(
     inner: int = 30,
     offset: bool = True,
     exclude: str | None = None,
+    cluster: int = 0,
 ) -> tuple[np.ndarray, FillReport]:
     """Fill the missing samples of ``markers`` from similar poses of ``database`` (see module docstring).
 
@@ -601,6 +603,12 @@ def fill_gaps(
         removes the offset between the database's actors and the clip's and makes the fill continuous.
     exclude : clip name left out of the database (the clip being cleaned), default ``markers.name``; ``""``
         leaves nothing out (the take is its own database).
+    cluster : with ``n >= 3``, the missing points of every neighbour are expressed relative to the nearest
+        visible rigid cluster: the ``n`` feature points nearest the gap's unknown points (in the neighbours'
+        poses). Each neighbour pose's cluster is fitted to the query frame's (``rigid_fit``: rotation and
+        translation, least squares) and its unknown points (velocities, accelerations: rotation only) move
+        with it, so a neighbour with the trunk bent otherwise still places the arm right on the trunk.
+        0 (default): body frame only.
 
     Returns
     -------
@@ -627,7 +635,7 @@ def fill_gaps(
     local = normalise(markers.points, origin, rot)
     usable = _reliable_mask(markers, reliable) & (cols >= 0)
     settings = _Settings(
-        k, min(levels or auto_levels(markers.fps), len(database.levels)), schedule, threshold, inner, offset
+        k, min(levels or auto_levels(markers.fps), len(database.levels)), schedule, threshold, inner, offset, cluster
     )
     excluded = markers.name if exclude is None else exclude
     keep_clip = np.array([not excluded or c != excluded for c in database.clip_names])
@@ -724,14 +732,12 @@ class _Gap:
         weights /= weights.sum(axis=1, keepdims=True)
         hits = rows[idx]
         dt = 2**lev / self.fps
-        means = [
-            np.einsum("qk,qkpc->qpc", weights, data[hits[..., None], u_cols]) * scale
-            for data, scale in ((level.positions, 1.0), (level.velocities, dt), (level.accelerations, dt**2))
-        ]
+        near = [data[hits[..., None], u_cols] for data in (level.positions, level.velocities, level.accelerations)]
+        if settings.cluster >= 3:
+            near = self._on_cluster(level.positions, hits, asked, near, settings.cluster)
+        means = [np.einsum("qk,qkpc->qpc", weights, x) * scale for x, scale in zip(near, (1.0, dt, dt**2))]
         if lev == 0:
-            spread = np.einsum(
-                "qk,qkp->qp", weights, ((level.positions[hits[..., None], u_cols] - means[0][:, None]) ** 2).sum(-1)
-            )
+            spread = np.einsum("qk,qkp->qp", weights, ((near[0] - means[0][:, None]) ** 2).sum(-1))
             report.spread[np.ix_(frames[query], self.unknown)] = np.sqrt(spread[: len(query)])
         out = []
         for mean in means:
@@ -744,6 +750,23 @@ class _Gap:
             out[1] += slope * 2**lev * var[..., None]
         return out[0], out[1], out[2]
 
+    def _on_cluster(
+        self, positions: np.ndarray, hits: np.ndarray, asked: np.ndarray, near: list[np.ndarray], n: int
+    ) -> list[np.ndarray]:
+        """``near`` (positions, velocities, accelerations of the unknown points ``[q, k, U, 3]`` of the
+        neighbours ``hits [q, k]`` of frames ``asked [q]``) moved with the rigid fit of each neighbour's
+        cluster onto the query frame's: the ``n`` feature points nearest the unknown points."""
+        f_cols, u_cols = self.cols[self.features], self.cols[self.unknown]
+        nearest = positions[hits[:, 0]]  # [q, M_db, 3]: each frame's nearest neighbour
+        centre = nearest[:, u_cols].mean(axis=1, keepdims=True)
+        order = np.argsort(np.linalg.norm(nearest[:, f_cols] - centre, axis=-1).mean(axis=0))[:n]
+        src = positions[hits[..., None], f_cols[order]]  # [q, k, n, 3]
+        dst = np.broadcast_to(self.local[asked][:, self.features[order]][:, None], src.shape)
+        rot, shift = rigid_fit(src, dst)
+        return [
+            np.einsum("qkij,qkuj->qkui", rot, x) + (shift[:, :, None] if i == 0 else 0.0) for i, x in enumerate(near)
+        ]
+
     def _offsets(self, ends: np.ndarray, prior: np.ndarray, frames: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Per-frame shift ``[n, P, 3]`` and per-frame slope ``[P, 3]`` (cm) of the ``offset`` extension:
         true minus prior position at the visible frames before / after the gap, blended linearly."""
@@ -755,6 +778,19 @@ class _Gap:
         before, after = np.nan_to_num(before), np.nan_to_num(after)
         slope = (after - before) / (b - a + 1)
         return before + slope * (frames - (a - 1))[:, None, None], slope
+
+
+def rigid_fit(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Least-squares rotation ``R [..., 3, 3]`` and translation ``t [..., 3]`` with ``R src + t ≈ dst`` for point
+    sets ``src, dst [..., n, 3]`` (Kabsch, no reflection)."""
+    cs, cd = src.mean(axis=-2, keepdims=True), dst.mean(axis=-2, keepdims=True)
+    h = np.swapaxes(src - cs, -1, -2) @ (dst - cd)  # [..., 3, 3]
+    u, _, vt = np.linalg.svd(h)
+    d = np.sign(np.linalg.det(np.swapaxes(vt, -1, -2) @ np.swapaxes(u, -1, -2)))
+    fix = np.ones(h.shape[:-1])
+    fix[..., 2] = np.where(d == 0, 1.0, d)
+    rot = np.swapaxes(vt, -1, -2) @ (fix[..., :, None] * np.swapaxes(u, -1, -2))
+    return rot, (cd - np.einsum("...ij,...nj->...ni", rot, cs))[..., 0, :]
 
 
 def _resample(frames_c: np.ndarray, values: np.ndarray, frames: np.ndarray) -> np.ndarray:
@@ -865,7 +901,7 @@ def blend_points(
     "minimisation; search=window: nearest windows), offset-corrected, blended with interpolation; options k, "
     "database=<folder>, own, "
     "speed, offset, margin_s, near_gain, query_hz, distance_gain, search; energy: levels, reliable, max_gap_s, "
-    "schedule, threshold, base; up",
+    "schedule, threshold, base, cluster; up",
 )
 def _knn(
     context: MethodContext,
@@ -882,6 +918,7 @@ def _knn(
     schedule: float = 0.25,
     threshold: float = 0.01,
     base: str = "lerp",
+    cluster: int = 0,
     **window: float,
 ) -> Callable[[Markers], np.ndarray]:
     """``knn`` for point data. The database is ``database`` (folder(s) of C3D files, joined with
@@ -926,6 +963,7 @@ def _knn(
             schedule=schedule,
             threshold=threshold,
             offset=offset,
+            cluster=cluster,
         )
         filled = fill_remaining_linear(
             noisy, filled, "knn left a gap unfilled (too long or no visible reliable marker)"

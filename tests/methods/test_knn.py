@@ -28,6 +28,7 @@ from mocapnet.methods.knn import (
     fill_gaps,
     fill_markers,
     normalise,
+    rigid_fit,
     upsample,
 )
 from mocapnet.methods.knn_angles import fill_angles, wrap
@@ -417,3 +418,17 @@ def test_max_weight_caps_the_knn_share_and_bad_settings_are_refused() -> None:
     for bad in ({"max_weight": 1.5}, {"k": 0}, {"fallback": "spline"}):
         with pytest.raises(ValueError, match="knn: k must be"):
             WindowSettings(**bad)
+
+
+def test_rigid_fit_recovers_a_rotation_and_cluster_fill_stays_exact(walk, database) -> None:
+    rng = np.random.default_rng(5)
+    src = rng.normal(size=(2, 5, 3)) * 10.0
+    q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+    rot = q * np.sign(np.linalg.det(q))  # a proper rotation
+    dst = src @ rot.T + np.array([1.0, -2.0, 3.0])
+    got_rot, got_shift = rigid_fit(src, dst)
+    assert np.allclose(got_rot, rot) and np.allclose(got_shift, [1.0, -2.0, 3.0])
+    noisy = corrupt_markers(walk, "segment-gap:left-arm:1", np.random.default_rng(3))
+    out, _ = fill_gaps(noisy, database, k=4, cluster=4)
+    assert np.array_equal(out[noisy.visible], walk.points[noisy.visible])
+    assert np.linalg.norm(out - walk.points, axis=-1)[~noisy.visible].max() < 1e-2
