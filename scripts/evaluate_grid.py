@@ -25,53 +25,30 @@ def main(cfg: DictConfig) -> None:
     from mocapnet.corpus import load_corpus
     from mocapnet.evaluate.benchmark import git_commit
     from mocapnet.evaluate.harness import evaluate, is_c3d_data
-    from mocapnet.evaluate.report import plot_per_motion, table, write_csv
+    from mocapnet.evaluate.report import evaluation_section, table, write_csv
     from mocapnet.parallel import Parallel
+    from mocapnet.threads import pin_threads
 
+    pin_threads(cfg.get("threads"))
     grid = cfg.get("grid", cfg)
     parallel = Parallel(cfg.get("scheduler"), cfg.get("workers"), cfg.get("threads", 1))
-    corpora = list(cfg.get("corpora") or grid.corpora)
-    corruptions = list(cfg.get("corruptions") or grid.corruptions)
-    methods = list(cfg.get("methods") or grid.methods)
-    out = Path(cfg.out_dir)
-    if not out.is_absolute():
-        out = ROOT / out
+    out = ROOT / cfg.out_dir  # an absolute out_dir stays as it is
     out.mkdir(parents=True, exist_ok=True)
-    commit = git_commit(short=True)
-    overrides = " ".join(sys.argv[1:])
-    lines = [
-        "# mocapnet evaluation grid",
-        "",
-        f"Command: `python scripts/evaluate_grid.py {overrides}` at commit {commit}.",
-        f"Repeats: {cfg.repeats}; fold: {cfg.fold if cfg.fold is not None else 'all clips'}; "
-        f"limit: {cfg.limit or 'none'}. Table entries are means over clips and repeats of each clip's error.",
-        "",
-        "```yaml",
-        OmegaConf.to_yaml(cfg).strip(),
-        "```",
-    ]
-    all_rows = []
-    for corpus_name in corpora:
+    lines = ["# mocapnet evaluation grid", "",
+             f"Command: `python scripts/evaluate_grid.py {' '.join(sys.argv[1:])}` at commit {git_commit(short=True)}.",
+             f"Repeats: {cfg.repeats}; fold: {cfg.fold if cfg.fold is not None else 'all clips'}; limit: "
+             f"{cfg.limit or 'none'}. Table entries are means over clips and repeats of each clip's error.",
+             "", "```yaml", OmegaConf.to_yaml(cfg).strip(), "```"]  # fmt: skip
+    rows = []
+    for corpus_name in cfg.get("corpora") or grid.corpora:
         corpus = None if is_c3d_data(corpus_name) else load_corpus(corpus_name, limit=cfg.limit)
-        for corruption in corruptions:
-            ev = evaluate(corpus_name, corruption, methods, cfg.repeats, cfg.fold, cfg.limit, corpus=corpus,
-                          parallel=parallel)  # fmt: skip
-            all_rows += ev.rows
-            plot = out / f"{ev.data}_{corruption.replace(':', '-')}.png"
-            plot_per_motion(ev, plot, title=f"{ev.data}: {corruption}")
-            n_files = len({r["file"] for r in ev.rows})
-            lines += [
-                "",
-                f"## {ev.data}: {corruption} ({n_files} clips)",
-                "",
-                table(ev, markdown=True),
-                "",
-                f"![error per motion]({plot.name})",
-            ]
-            for name, reason in ev.skipped:
-                lines.append(f"- skipped {name}: {reason}")
+        for corruption in cfg.get("corruptions") or grid.corruptions:
+            ev = evaluate(corpus_name, corruption, list(cfg.get("methods") or grid.methods), cfg.repeats, cfg.fold,
+                          cfg.limit, corpus=corpus, parallel=parallel)  # fmt: skip
+            rows += ev.rows
+            lines += evaluation_section(ev, out / f"{ev.data}_{corruption.replace(':', '-')}.png")
             print(f"{ev.data}: {corruption}\n{table(ev)}\n", flush=True)
-    write_csv(out / "rows.csv.gz", all_rows)
+    write_csv(out / "rows.csv.gz", rows)
     (out / "report.md").write_text("\n".join(lines) + "\n")
     print(f"wrote {out / 'report.md'}")
 

@@ -122,6 +122,17 @@ def table(ev: Evaluation, markdown: bool = False) -> str:
     return "\n".join([fmt_row(head), fmt_row(["-" * w for w in widths])] + [fmt_row(r) for r in body] + [note])
 
 
+def evaluation_section(ev: Evaluation, plot: str | os.PathLike | None = None) -> list[str]:
+    """Markdown lines for one (data, corruption) of a report: a heading with the clip count, the table with
+    ratios, the per-motion error plot (written to ``plot`` when given and linked by its name) and the skipped
+    clips with their reasons."""
+    lines = ["", f"## {ev.data}: {ev.corruption} ({len({r['file'] for r in ev.rows})} clips)", "", table(ev, True)]
+    if plot is not None:
+        plot_per_motion(ev, plot, title=f"{ev.data}: {ev.corruption}")
+        lines += ["", f"![error per motion]({Path(plot).name})"]
+    return lines + [f"- skipped {name}: {reason}" for name, reason in ev.skipped]
+
+
 def write_csv(path: str | os.PathLike, rows: list[dict]) -> None:
     """One line per (method, corruption, file, repeat) with the columns of ``ROW_FIELDS``; gzip-compressed
     (reproducibly: no name or time in the header) when ``path`` ends in ``.gz``."""
@@ -159,6 +170,20 @@ def write_json(path: str | os.PathLike, data: Any, indent: int | None = None) ->
     with _text_output(path) as fh:
         json.dump(data, fh, indent=indent, separators=None if indent else (",", ":"), default=float)
         fh.write("\n")
+
+
+def write_results(
+    stem: str | os.PathLike, data: Any, text: str, json_suffix: str = ".json", indent: int | None = None
+) -> None:
+    """A benchmark's results: ``text`` (markdown) to ``stem.md`` and ``data`` to ``stem`` + ``json_suffix``
+    (``.json.gz`` for per-row dumps) with ``write_json``, each atomically, the folder made if needed; ``text``
+    is printed too."""
+    stem = Path(stem)
+    stem.parent.mkdir(parents=True, exist_ok=True)
+    write_json(stem.with_name(stem.name + json_suffix), data, indent)
+    with atomic_output(stem.with_name(stem.name + ".md")) as tmp:
+        tmp.write_text(text)
+    print(text)
 
 
 def read_json(path: str | os.PathLike) -> Any:
