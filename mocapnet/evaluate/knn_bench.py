@@ -65,6 +65,12 @@ TUNE_VARIANTS: tuple[dict, ...] = (
     {"max_weight": 0.5, "speed": 120.0},
     {"max_weight": 0.5, "distance_gain": 0.0},
     {"max_weight": 0.7, "distance_gain": 12.0},
+    {"limb_distance": True},
+    {"limb_distance": True, "distance_gain": 6.0},
+    {"limb_distance": True, "distance_gain": 12.0},
+    {"limb_distance": True, "max_weight": 0.7},
+    {"limb_distance": True, "max_weight": 0.7, "distance_gain": 6.0},
+    {"limb_distance": True, "speed": 120.0, "distance_gain": 6.0},
 )
 
 

@@ -125,6 +125,32 @@ def pca_angles(motion: Motion, mask: np.ndarray, base: np.ndarray, visible: np.n
     return out
 
 
+def limb_rms(
+    stored: np.ndarray,
+    feats: np.ndarray,
+    starts: np.ndarray,
+    from_own: np.ndarray,
+    grid: np.ndarray,
+    w0: int,
+    w: np.ndarray,
+    kernel: np.ndarray,
+    gap: tuple[int, int],
+) -> float:
+    """Kernel-weighted RMS distance (cm per weighted point and frame) between the query ``feats [T, P, 3]`` and
+    its neighbour windows (``starts [k]``, ``from_own [k]``; points ``stored [N, P, 3]``) over the points
+    missing somewhere in ``gap`` (the limb), on the window's grid frames ``grid`` (from ``w0``) where they
+    are observed (weights ``w [F, P]``, 0 where missing). NaN when the limb is never observed there."""
+    a, b = gap
+    inside = (grid >= a) & (grid < b)
+    limb = np.flatnonzero((w[inside] == 0).any(axis=0)) if inside.any() else np.array([], dtype=int)
+    wl = w[:, limb]
+    if wl.sum() == 0:
+        return float("nan")
+    near = gather(stored[:, limb], feats[:, limb], starts, from_own, grid - w0)  # [F, k, L, 3]
+    d2 = (((near - feats[grid][:, None, limb]) ** 2).sum(-1) * wl[:, None]).sum(axis=(0, 2))  # [k]
+    return float(np.sqrt((kernel * d2).sum() / wl.sum()))
+
+
 def fill_angles(
     motion: Motion,
     mask: np.ndarray,
@@ -183,6 +209,9 @@ def fill_angles(
         kernel /= kernel.sum()
         rms = float(np.sqrt((kernel * d2).sum() / w.sum()))  # cm per weighted point and frame
         stats.distance.append(rms)
+        stats.limb_distance.append(limb_rms(db.points, feats, starts, from_own, grid, w0, w, kernel, (a, b)))
+        if settings.limb_distance and np.isfinite(stats.limb_distance[-1]):
+            rms = stats.limb_distance[-1]
         for u, c in enumerate(cols):
             near = base[span, c][:, None] + wrap(traj[:, :, u] - base[span, c][:, None])  # [S, k] degrees
             for c0, c1 in runs(mask[lo : hi + 1, c]):

@@ -36,12 +36,15 @@ def blend_weight(spread: np.ndarray, seconds: np.ndarray, speed: float) -> np.nd
 @dataclass
 class FillStats:
     """What a window fill did: gaps (= windows searched), CPU seconds (``time.process_time``) in the
-    search and in all, and per gap the neighbours' RMS feature distance per point (cm)."""
+    search and in all, and per gap the neighbours' RMS feature distance per point (cm): over every weighted
+    point (``distance``) and over the points missing in the gap only, where they are observed (the window's
+    margins; ``limb_distance``, NaN when they are never observed)."""
 
     gaps: int = 0
     search_s: float = 0.0
     total_s: float = 0.0
     distance: list[float] = field(default_factory=list)
+    limb_distance: list[float] = field(default_factory=list)
 
 
 class Searcher:
@@ -136,7 +139,10 @@ class WindowSettings:
     fully observed frames compete with the database's (a repeated gesture, a gait cycle); ``fallback``:
     what the blend falls back to, ``lerp`` or (joint space only) ``pca`` (``knn_angles.pca_angles``);
     ``max_weight``: the largest weight the kNN estimate gets against the fallback (1: all of it where the
-    neighbours agree far from the observed frames; 0.5: at most the mean of the two estimates)."""
+    neighbours agree far from the observed frames; 0.5: at most the mean of the two estimates);
+    ``limb_distance``: the distance that ``distance_gain`` scales is measured on the missing points only, in
+    the margins where they are observed (how well the neighbours match the missing limb itself), instead of
+    on every point (joint space only)."""
 
     k: int = 16
     margin_s: float = 0.3
@@ -148,6 +154,7 @@ class WindowSettings:
     own: bool = True
     fallback: str = "lerp"
     max_weight: float = 1.0
+    limb_distance: bool = False
 
     def __post_init__(self) -> None:
         if self.k < 1 or not 0.0 <= self.max_weight <= 1.0 or self.fallback not in ("lerp", "pca"):

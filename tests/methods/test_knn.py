@@ -31,7 +31,7 @@ from mocapnet.methods.knn import (
     rigid_fit,
     upsample,
 )
-from mocapnet.methods.knn_angles import fill_angles, wrap
+from mocapnet.methods.knn_angles import fill_angles, limb_rms, wrap
 from mocapnet.methods.knn_database import SkeletonDatabase, cached_database, default_corpus
 from mocapnet.methods.knn_window import Searcher, WindowSettings, fill_run
 from mocapnet.methods.pca import pca_fill
@@ -432,3 +432,17 @@ def test_rigid_fit_recovers_a_rotation_and_cluster_fill_stays_exact(walk, databa
     out, _ = fill_gaps(noisy, database, k=4, cluster=4)
     assert np.array_equal(out[noisy.visible], walk.points[noisy.visible])
     assert np.linalg.norm(out - walk.points, axis=-1)[~noisy.visible].max() < 1e-2
+
+
+def test_limb_distance_measures_the_missing_points_where_they_are_observed() -> None:
+    rng = np.random.default_rng(2)
+    feats = rng.normal(size=(10, 3, 3))
+    stored = feats.copy()
+    stored[:, 2] += [2.0, 0.0, 0.0]  # the neighbour is 2 cm off on the missing point only
+    stored[:, 0] += 50.0  # and far off on an observed one, which limb_rms ignores
+    w = np.ones((10, 3))
+    w[4:6, 2] = 0.0  # point 2 missing in the gap [4, 6)
+    args = (np.array([0]), np.array([False]), np.arange(10), 0)
+    assert np.isclose(limb_rms(stored, feats, *args, w, np.array([1.0]), (4, 6)), 2.0)
+    w[:, 2] = 0.0  # never observed in the window: no limb distance
+    assert np.isnan(limb_rms(stored, feats, *args, w, np.array([1.0]), (4, 6)))
