@@ -11,27 +11,15 @@ work is in ``mocapnet.evaluate.knn_bench``. Writes ``benchmarks/results/knn.md``
 from __future__ import annotations
 
 import argparse
-import json
-import os
-import platform
-import shlex
 import sys
 import time
 from pathlib import Path
 
-import numpy as np
-
 from mocapnet.corpus import data_root
 from mocapnet.evaluate import knn_bench
-from mocapnet.evaluate.benchmark import REPO, git_commit
-from mocapnet.io.atomic import atomic_output
+from mocapnet.evaluate.benchmark import REPO
+from mocapnet.evaluate.report import provenance, write_results
 from mocapnet.threads import pin_threads
-
-
-def write(path: Path, text: str) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_output(path) as tmp:
-        tmp.write_text(text)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -42,7 +30,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--tune", action="store_true", help="score setting variations on bandai2 fold 1 instead")
     args = parser.parse_args(argv)
     pin_threads(1)
-    command = shlex.join(["python", "scripts/bench_knn.py", *(sys.argv[1:] if argv is None else argv)])
+    report = provenance(argv)
     root = data_root()
     needed = knn_bench.C3D_FILES + knn_bench.C3D_DATABASE_ONLY + ("bvh/bandai_namco_1", "bvh/bandai_namco_2")
     missing = [f for f in needed if not (root / f).exists()]
@@ -52,32 +40,13 @@ def main(argv: list[str] | None = None) -> int:
     started = time.time()
     if args.tune:
         rows = knn_bench.tune(min(args.clips, 20))
-        write(
-            args.out / "knn_tuning.json",
-            json.dumps({"command": command, "git_commit": git_commit(), "rows": rows}) + "\n",
-        )
-        text = knn_bench.tune_markdown(rows, command)
-        write(args.out / "knn_tuning.md", text)
-        print(text)
+        report.update(rows=rows, wall_s=time.time() - started)
+        write_results(args.out / "knn_tuning", report, knn_bench.tune_markdown(rows, report))
         return 0
-    speed = knn_bench.bench_speed(10)
-    bvh = knn_bench.bench_bvh(args.clips, args.repeats)
-    c3d = knn_bench.bench_c3d(root, args.repeats)
-    report = {
-        "command": command,
-        "git_commit": git_commit(),
-        "machine": f"{platform.machine()}, {os.cpu_count()} CPUs shared, one thread, NumPy {np.__version__}",
-        "n_clips": args.clips,
-        "repeats": args.repeats,
-        "bvh": bvh,
-        "c3d": c3d,
-        "speed": speed,
-        "wall_s": time.time() - started,
-    }
-    write(args.out / "knn.json", json.dumps(report, separators=(",", ":"), default=float) + "\n")
-    text = knn_bench.markdown(report)
-    write(args.out / "knn.md", text)
-    print(text)
+    report.update(n_clips=args.clips, repeats=args.repeats, speed=knn_bench.bench_speed(10))
+    report.update(bvh=knn_bench.bench_bvh(args.clips, args.repeats), c3d=knn_bench.bench_c3d(root, args.repeats))
+    report["wall_s"] = time.time() - started
+    write_results(args.out / "knn", report, knn_bench.markdown(report))
     return 0
 
 

@@ -27,7 +27,7 @@ from mocapnet.corpus import content_label, load_corpus
 from mocapnet.corrupt import Corruption, corrupt_motion, seed_for
 from mocapnet.evaluate.benchmark import gapfill_rigid_body, numpy_int_alias
 from mocapnet.evaluate.harness import Evaluation, evaluate_angles, score_markers, score_motions
-from mocapnet.evaluate.report import table
+from mocapnet.evaluate.report import fmt, markdown_table, table
 from mocapnet.io.c3d import read_c3d
 from mocapnet.methods import MethodContext, build_method
 from mocapnet.methods.knn_angles import ANGLE_DEFAULTS, fill_angles
@@ -210,41 +210,44 @@ def tune_scores(rows: list[dict]) -> dict[str, float]:
     return {v: float(np.mean(s)) for v, s in scores.items()}
 
 
-def tune_markdown(rows: list[dict], command: str) -> str:
-    """Table of ``tune`` rows: per variant and cell RMS gap error (°) / position error (cm), and the score."""
+def tune_markdown(rows: list[dict], report: dict) -> str:
+    """Table of ``tune`` rows: per variant and cell RMS gap error (°) / position error (cm), and the score;
+    ``report``: the run's ``report.provenance`` and ``wall_s``."""
     scores = tune_scores(rows)
     cells = [(c, mode) for mode in ("in", "out") for c in TUNE_CORRUPTIONS]
     lines = [
         f"# Joint-space knn settings on bandai2 fold 1 ({len({r['file'] for r in rows})} clips of at least 7 s)",
         "",
-        f"Defaults: `{WindowSettings(**ANGLE_DEFAULTS)}`. Command: `{command}`. Each cell: RMS gap error (degrees) / "
+        f"- command: `{report['command']}`; git commit `{report['git_commit']}`; {report['machine']}; wall time "
+        f"{report['wall_s']:.0f} s",
+        "",
+        f"Defaults: `{WindowSettings(**ANGLE_DEFAULTS)}`. Each cell: RMS gap error (degrees) / "
         "whole-body position error (cm). *in*: database = bandai2 without fold 1; *out*: also without every "
         "clip of the scored clip's content label (motion the database lacks). score: mean over the cells of "
         "max(pos / better of lerp and pca, gap / lerp); lowest wins (the selection rule of the knn note).",
         "",
-        "| variant | " + " | ".join(f"{c.split(':', 1)[1]} {mode}" for c, mode in cells) + " | score |",
-        "|---" * (len(cells) + 2) + "|",
     ]
+    body = []
     for m in ["lerp", "pca", *map(variant_name, TUNE_VARIANTS)]:
         out = []
         for c, mode in cells:
             sel = [r for r in rows if r["corruption"] == c and r["mode"] == mode and r["method"] == m]
             rms = np.sqrt(np.mean([r["gap_err_deg"] ** 2 for r in sel]))
             out.append(f"{rms:.2f} / {_mean(sel, 'pos_err_cm'):.3f}")
-        score = f"{scores[m]:.3f}" if m in scores else "—"
-        lines.append(f"| {m} | " + " | ".join(out) + f" | {score} |")
-    return "\n".join(lines) + "\n"
+        body.append([m, *out, fmt(scores.get(m))])
+    head = ["variant", *(f"{c.split(':', 1)[1]} {mode}" for c, mode in cells), "score"]
+    return "\n".join(lines + markdown_table(head, body)) + "\n"
 
 
 def grid(rows: list[dict], group: str, methods: Sequence[str], metric: str, ref: str = "lerp") -> list[str]:
     """Markdown: one line per value of ``group``, the mean ``metric`` of each method (ratio to ``ref``)."""
-    lines = [f"| {group} | cases | " + " | ".join(methods) + " |", "|---" * (len(methods) + 2) + "|"]
+    body = []
     for g in sorted({r[group] for r in rows}, key=str):
         sel = [r for r in rows if r[group] == g]
         base = _mean(sel, metric, method=ref)
-        cells = [f"{v:.3f} ({v / base:.2f})" for v in (_mean(sel, metric, method=m) for m in methods)]
-        lines.append(f"| {g} | {sum(r['method'] == ref for r in sel)} | " + " | ".join(cells) + " |")
-    return lines
+        cells = [f"{fmt(v)} ({fmt(v / base, 2)})" for v in (_mean(sel, metric, method=m) for m in methods)]
+        body.append([g, sum(r["method"] == ref for r in sel), *cells])
+    return markdown_table([group, "cases", *methods], body)
 
 
 def verdicts(bvh: list[dict], c3d: list[dict], speed: dict) -> list[str]:
@@ -313,9 +316,7 @@ def markdown(report: dict) -> str:
         f"Database load from the cache {speed['load_s']:.2f} s (once); search {speed['query_ms']:.3f} ms CPU per "
         "filled frame.",
         "",
-        "| gap s | s per second of gap |",
-        "|---|---|",
-        *(f"| {g} | {per:.3f} |" for g, per in speed["per_gap"].items()),
+        *markdown_table(["gap s", "s per second of gap"], [(g, fmt(per)) for g, per in speed["per_gap"].items()]),
         "",
         "## Per corruption (`mocapnet.evaluate.report.table`)",
     ]

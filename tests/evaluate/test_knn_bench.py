@@ -7,7 +7,7 @@ from mocapnet.evaluate.knn_bench import TUNE_CORRUPTIONS, TUNE_VARIANTS, evenly,
 
 
 def _row(method: str, corruption: str, pos: float, gap: float, **extra: object) -> dict:
-    return {"method": method, "corruption": corruption, "pos_err_cm": pos, "gap_err_deg": gap, **extra}
+    return {"method": method, "corruption": corruption, "file": "a", "pos_err_cm": pos, "gap_err_deg": gap, **extra}
 
 
 def test_selection_rule_takes_the_worse_of_position_and_angle_ratios() -> None:
@@ -23,6 +23,9 @@ def test_selection_rule_takes_the_worse_of_position_and_angle_ratios() -> None:
     assert scores["defaults"] == 1.2  # gap 12 / lerp 10 beats pos 1.0 / pca 1.0
     assert scores[variant_name(TUNE_VARIANTS[1])] == 1.1  # pos 1.1 / 1.0 beats gap 0.5
     assert min(scores, key=scores.get) == variant_name(TUNE_VARIANTS[1])
+    text = knn_bench.tune_markdown(rows, {"command": "c", "git_commit": "g", "machine": "m", "wall_s": 1.0})
+    table = [line for line in text.splitlines() if line.startswith("| ")]
+    assert len(table) == 1 + 2 + len(TUNE_VARIANTS) and table[3].endswith("| 1.200 |")  # header, lerp, pca, ...
 
 
 def test_verdicts_compare_knn_with_the_better_baseline() -> None:
