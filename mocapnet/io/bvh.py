@@ -15,12 +15,12 @@ names are unique. Both the parser and the writer are iterative (no recursion), l
 Reading is guarded: ``.gz`` files are decompressed in chunks up to ``max_bytes`` and refused at the first NUL
 byte; every error is a ``MocapFileError`` naming the file and line and quoting at most 40 characters.
 
-The MOTION block takes a vectorised fast path when every number is written with the same count of decimals
-(``%.6f``, as nearly every exporter does): the decimal point is removed and the digits are read as integers,
-then divided by ``10**k`` — exact and correctly rounded (the result equals ``float(token)``) because every
-mantissa is below ``2**53``. Any other layout is read by ``numpy.loadtxt``; only when that fails is the block
-scanned line by line to name the offending line. Rotation channels are unwrapped along time (files that wrap
-at ±180° become continuous), which leaves every rotation unchanged.
+The MOTION block is read by vectorised exact parsers (``mocapnet.io.decimal_text``): one for numbers that
+all have the same count of decimals (``%.6f``, as nearly every exporter writes), one for any plain decimal
+(``%g``: integers, exponents); each value is the double ``float(token)`` returns. Text they do not take is
+read by ``numpy.loadtxt``; only when that fails is the block scanned line by line to name the offending line.
+Rotation channels are unwrapped along time (files that wrap at ±180° become continuous), which leaves every
+rotation unchanged.
 """
 
 from __future__ import annotations
@@ -41,6 +41,7 @@ from typing import NoReturn
 import numpy as np
 
 from mocapnet.io.atomic import MocapFileError, atomic_output
+from mocapnet.io.decimal_text import parse_frames
 from mocapnet.motion import CHANNEL_NAMES, Motion, Skeleton
 
 # Candidate length units (cm per unit) for a skeleton whose unit is not given: the one that makes the rest
@@ -73,15 +74,6 @@ _HIERARCHY_LOCK = threading.Lock()
 _CHANNEL_BY_BYTES = {c.encode(): c for c in CHANNEL_NAMES}
 # Frame time range accepted, seconds: 1 MHz down to one frame an hour.
 _FRAME_TIME_RANGE = (1e-6, 3600.0)
-# Fixed-point fast path, 8 bytes at a time: masks of the last d bytes of a little-endian word (d = 0..8), the
-# ASCII '0' in those bytes, and the constants of the digit checks and of ``_eight_digits``.
-_HIGH_BYTES = np.array([(2**64 - 1) ^ (2 ** (8 * (8 - d)) - 1) for d in range(9)], dtype=np.uint64)
-_HIGH_ZEROS = _HIGH_BYTES & np.uint64(0x3030303030303030)
-_PLUS_118 = np.uint64(0x7676767676767676)  # a byte above 9 gets its high bit set (digit values 0-9 do not)
-_HIGH_BITS = np.uint64(0x8080808080808080)
-_LOW_OF_QUADS = np.uint64(0x000000FF000000FF)
-_MUL_HIGH = np.uint64(100 + (1000000 << 32))
-_MUL_LOW = np.uint64(1 + (10000 << 32))
 
 
 def _quote(token: bytes | str) -> str:
@@ -471,98 +463,6 @@ def _token_start_mask(a: np.ndarray) -> np.ndarray:
     return start
 
 
-def _eight_digits(word: np.ndarray) -> np.ndarray:
-    """Integer value of 8 decimal digits held one per byte (values 0-9, first byte most significant), uint64.
-
-    The SWAR reduction of Lemire's "parse eight digits": pairs, then quads, then all eight.
-    """
-    word = word * np.uint64(10) + (word >> np.uint64(8))
-    word = ((word & _LOW_OF_QUADS) * _MUL_HIGH + ((word >> np.uint64(16)) & _LOW_OF_QUADS) * _MUL_LOW) >> np.uint64(32)
-    return word & np.uint64(0xFFFFFFFF)
-
-
-def _parse_fixed_point(text: bytes, n_channels: int, start: int = 0) -> np.ndarray | None:
-    """``[T, n_channels]`` frames when every token is ``[sign]digits.k-digits`` with one k, else None.
-
-    Vectorised over tokens, one per decimal point, using the positions of the bytes below '0' ("specials":
-    whitespace, signs, dots): after each dot come exactly k bytes then whitespace; before it 1 to 8 bytes, then
-    whitespace or a sign with whitespace before it; those bytes are checked to be digits while they are read,
-    8 at a time (``_eight_digits``). When the tokens' lengths add up to the count of non-whitespace bytes the
-    text holds nothing else. Exactness: a token is an integer m < 10**15 < 2**53 over 10**k, and the IEEE
-    division m / 10**k is correctly rounded: the same double ``float(token)`` returns. The frames are
-    ``text[start:]``; when 9 bytes precede them, ``text[start - 1]`` is a newline and ``text`` ends with one
-    (the usual case), nothing is copied.
-    """
-    if start < 9 or text[start - 1] != 10:
-        text, start = b"\n" * 9 + text[start:], 9
-    if text[-1:] != b"\n":
-        text += b"\n"
-    if text.find(b"e", start) >= 0 or text.find(b"E", start) >= 0:
-        return None  # exponents ("%g" files): decline before any work
-    a = np.frombuffer(text, np.uint8)[start - 1 :]  # every token has a separator on both sides
-    specials = np.flatnonzero(a < 48)
-    kinds = a[specials]
-    at_dot = np.flatnonzero(kinds == 46)
-    n = at_dot.size
-    if n == 0 or n % n_channels:
-        return None
-    dots = specials[at_dot]
-    k = int(specials[at_dot[0] + 1] - dots[0] - 1)
-    if not 1 <= k <= 8 or (specials[at_dot + 1] - dots != k + 1).any():
-        return None
-    whole = dots - specials[at_dot - 1] - 1  # bytes between the dot and the special before it
-    if whole.min() < 1 or whole.max() > min(8, 15 - k):
-        return None
-    lead = kinds[at_dot - 1]  # the special before the digits: whitespace or a sign
-    negative = lead == 45
-    signed = negative | (lead == 43)
-    if not (signed | (lead <= 32)).all():
-        return None
-    n_signed = int(np.count_nonzero(signed))
-    if n_signed and (a[(dots - whole - 2)[signed]] > 32).any():
-        return None  # a sign must start its token
-    newline = kinds == 10
-    if np.count_nonzero(kinds < 32) != np.count_nonzero(newline) + np.count_nonzero(kinds == 9):
-        return None  # control characters other than tab and newline (CR is gone by now)
-    non_space = int(np.count_nonzero(kinds > 32))
-    if non_space != n + n_signed or n_signed + int(whole.sum()) + n * (k + 1) != a.size - (kinds.size - non_space):
-        return None  # punctuation, stray signs or dots, bytes outside the tokens
-    words = np.ndarray((len(text) - 7,), np.dtype("<u8"), text, 0, (1,))  # 8 bytes from every offset
-    at = dots + (start - 1)  # offsets of the dots in text
-    frac = (words[at + (k - 7)] & _HIGH_BYTES[k]) - _HIGH_ZEROS[k]
-    high = (words[at - 8] & _HIGH_BYTES[whole]) - _HIGH_ZEROS[whole]
-    if (((frac + _PLUS_118) | frac | (high + _PLUS_118) | high) & _HIGH_BITS).any():
-        return None  # a byte that is not a digit (letters, non-ASCII)
-    value = (_eight_digits(high) * np.uint64(10**k) + _eight_digits(frac)).astype(np.float64)
-    value /= 10.0**k
-    np.negative(value, out=value, where=negative)
-    edges = np.concatenate(([0], specials[newline], [a.size]))
-    counts = np.diff(np.searchsorted(dots, edges))  # tokens per line
-    if not (counts[counts > 0] == n_channels).all():
-        return None
-    return value.reshape(-1, n_channels)
-
-
-def _parse_fixed_point_in_blocks(
-    text: bytes, n_channels: int, start: int = 0, block_bytes: int = 1 << 23
-) -> np.ndarray | None:
-    """``_parse_fixed_point`` over blocks of whole lines of about ``block_bytes``, so its index arrays (~10
-    bytes per text byte) stay small: peak memory ~ the frames plus a block's work, not ~12x the file."""
-    if len(text) - start <= block_bytes:
-        return _parse_fixed_point(text, n_channels, start)
-    parts = []
-    pos = start
-    while pos < len(text):
-        end = text.find(b"\n", min(pos + block_bytes, len(text) - 1))
-        end = len(text) if end < 0 else end + 1
-        part = _parse_fixed_point(text[pos:end], n_channels)
-        if part is None:
-            return None
-        parts.append(part)
-        pos = end
-    return np.concatenate(parts)
-
-
 def _parse_general(body: bytes, n_channels: int) -> np.ndarray | None:
     """``[T, n_channels]`` frames through ``numpy.loadtxt``, or None when the text does not parse."""
     if not body.isascii() or any(separator in body for separator in _INFO_SEPARATORS):
@@ -750,7 +650,7 @@ def _parse(raw: bytes, path: Path, cm_per_unit: float | None, unwrap: bool) -> M
         raise MocapFileError(f"{path}:{frames_line}: the hierarchy declares no CHANNELS, yet frames follow")
     if len(raw) - start > (raw.count(b"\n", start) + 1) * (64 * n_ch + 1024):  # some line is far too long
         _check_long_lines(path, raw[start:], first_line, n_ch)
-    data = _parse_fixed_point_in_blocks(raw, n_ch, start)
+    data = parse_frames(raw, n_ch, start)
     if data is None:
         body = raw[start:]
         data = _parse_general(body, n_ch)

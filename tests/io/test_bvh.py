@@ -491,7 +491,7 @@ def test_fixed_point_and_general_paths_agree():
     """The vectorised %.Nf reader and numpy.loadtxt give the same doubles (sign of zero included)."""
     import io
 
-    from mocapnet.io.bvh import _parse_fixed_point
+    from mocapnet.io.decimal_text import parse_fixed_point as _parse_fixed_point
 
     rng = np.random.default_rng(3)
     for decimals in (1, 4, 6, 8):
@@ -515,14 +515,18 @@ def test_fixed_point_and_general_paths_agree():
         np.testing.assert_array_equal(np.signbit(fast), np.signbit(slow))
 
 
-def test_fixed_point_in_blocks_equals_one_pass(cmu):
-    from mocapnet.io.bvh import _parse_fixed_point, _parse_fixed_point_in_blocks
+def test_frames_in_blocks_equal_one_pass(cmu):
+    from mocapnet.io.decimal_text import parse_fixed_point, parse_frames
 
     text = format_bvh(cmu.with_channels(cmu.channels[:300])).encode()
     start = text.index(b"\n", text.index(b"Frame Time")) + 1
-    whole = _parse_fixed_point(text, cmu.skeleton.n_channels, start)
+    whole = parse_fixed_point(text, cmu.skeleton.n_channels, start)
     for block in (1, 500, 4096, 1 << 20):
-        blocks = _parse_fixed_point_in_blocks(text, cmu.skeleton.n_channels, start, block_bytes=block)
+        blocks = parse_frames(text, cmu.skeleton.n_channels, start, block_bytes=block)
         assert blocks is not None and np.array_equal(blocks, whole), block
-    damaged = text[:-30] + b"1e5 " + text[-26:]
-    assert _parse_fixed_point_in_blocks(damaged, cmu.skeleton.n_channels, start, block_bytes=500) is None
+        last = text.rindex(b"\n", 0, len(text) - 1) + 1
+        mixed = text[:last] + b"1e5 " + text[last:].split(b" ", 1)[1]  # the last block takes the general parser
+        blocks = parse_frames(mixed, cmu.skeleton.n_channels, start, block_bytes=block)
+        assert blocks is not None and np.array_equal(blocks[:-1], whole[:-1]) and blocks[-1, 0] == 1e5, block
+    damaged = text[:-30] + b"1e5x " + text[-26:]
+    assert parse_frames(damaged, cmu.skeleton.n_channels, start, block_bytes=500) is None

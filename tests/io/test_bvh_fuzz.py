@@ -24,7 +24,8 @@ from hypothesis import strategies as st
 
 from mocapnet.corpus import PACKAGE_DATA
 from mocapnet.io import MocapFileError, read_bvh, write_bvh
-from mocapnet.io.bvh import _parse_fixed_point, format_bvh, parse_bvh
+from mocapnet.io.bvh import format_bvh, parse_bvh
+from mocapnet.io.decimal_text import parse_fixed_point as _parse_fixed_point
 from mocapnet.motion import CHANNEL_NAMES, Motion, Skeleton
 
 FUZZ_SETTINGS = settings(max_examples=60, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.too_slow])
