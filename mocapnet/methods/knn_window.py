@@ -142,7 +142,8 @@ class WindowSettings:
     neighbours agree far from the observed frames; 0.5: at most the mean of the two estimates);
     ``limb_distance``: the distance that ``distance_gain`` scales is measured on the missing points only, in
     the margins where they are observed (how well the neighbours match the missing limb itself), instead of
-    on every point (joint space only)."""
+    on every point (joint space only); ``plateau_s``: the fallback's error is taken to stop growing this many
+    seconds from the nearest observed frame (PCA's error does not grow like interpolation's; None: never)."""
 
     k: int = 16
     margin_s: float = 0.3
@@ -155,10 +156,14 @@ class WindowSettings:
     fallback: str = "lerp"
     max_weight: float = 1.0
     limb_distance: bool = False
+    plateau_s: float | None = None
 
     def __post_init__(self) -> None:
-        if self.k < 1 or not 0.0 <= self.max_weight <= 1.0 or self.fallback not in ("lerp", "pca"):
-            raise ValueError(f"knn: k must be >= 1, max_weight in [0, 1], fallback lerp or pca; got {self}")
+        plateau_ok = self.plateau_s is None or self.plateau_s > 0
+        if self.k < 1 or not 0.0 <= self.max_weight <= 1.0 or self.fallback not in ("lerp", "pca") or not plateau_ok:
+            raise ValueError(
+                f"knn: k must be >= 1, max_weight in [0, 1], fallback lerp or pca, plateau_s > 0; got {self}"
+            )
 
 
 def fill_run(
@@ -194,9 +199,8 @@ def fill_run(
     if settings.speed is None:
         out[t] = est
         return
-    beta = settings.max_weight * blend_weight(
-        np.hypot(spread, settings.distance_gain * rms), seconds[t], settings.speed
-    )
+    d = seconds[t] if settings.plateau_s is None else np.minimum(seconds[t], settings.plateau_s)
+    beta = settings.max_weight * blend_weight(np.hypot(spread, settings.distance_gain * rms), d, settings.speed)
     anchor = base if anchor is None else anchor
     out[t] = anchor[t] + beta * (est - anchor[t])
 

@@ -406,7 +406,7 @@ def test_searcher_shares_the_database_points_and_builds_one_coarse_table(parts) 
 def test_max_weight_caps_the_knn_share_and_bad_settings_are_refused() -> None:
     """``max_weight`` 0.5 gives the mean of the kNN estimate and the fallback where the neighbours agree."""
     n = 20
-    near = np.tile(np.linspace(0.0, 10.0, n)[:, None], (1, 2)) + np.sin(np.arange(n))[:, None] * 4.0  # [S, k]
+    near = np.linspace(0.0, 10.0, n)[:, None] + np.stack([np.sin(np.arange(n)), np.cos(np.arange(n))], 1) * 4.0
     kernel = np.array([0.5, 0.5])
     seconds = np.full(n, 1e3)  # far from the observed frames: the blend weight is max_weight
     base, anchor = np.linspace(0.0, 10.0, n), np.full(n, -3.0)
@@ -415,7 +415,10 @@ def test_max_weight_caps_the_knn_share_and_bad_settings_are_refused() -> None:
     fill_run(half, base, near, kernel, seconds, 0, (5, 15), 0.0, WindowSettings(speed=60.0, max_weight=0.5), anchor)
     assert np.allclose(half[5:15], 0.5 * (full[5:15] + anchor[5:15])) and np.abs(full - anchor)[5:15].max() > 1.0
     assert np.all(half[:5] == 0) and np.all(half[15:] == 0)  # only the run is written
-    for bad in ({"max_weight": 1.5}, {"k": 0}, {"fallback": "spline"}):
+    capped = np.zeros(n)  # the fallback's error stops growing 0.01 s out: the kNN share shrinks
+    fill_run(capped, base, near, kernel, seconds, 0, (5, 15), 0.0, WindowSettings(speed=1.0, plateau_s=0.01), anchor)
+    assert np.abs(capped - anchor)[5:15].max() < np.abs(full - anchor)[5:15].max()
+    for bad in ({"max_weight": 1.5}, {"k": 0}, {"fallback": "spline"}, {"plateau_s": 0.0}):
         with pytest.raises(ValueError, match="knn: k must be"):
             WindowSettings(**bad)
 
