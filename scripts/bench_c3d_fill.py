@@ -15,8 +15,7 @@ from pathlib import Path
 
 from mocapnet.corpus import data_root
 from mocapnet.evaluate import c3d_bench
-from mocapnet.evaluate.report import provenance, rounded, write_json
-from mocapnet.io.atomic import atomic_output
+from mocapnet.evaluate.results import provenance, rounded, write_results
 from mocapnet.threads import pin_threads
 
 REPO = Path(__file__).resolve().parents[1]
@@ -40,12 +39,7 @@ def main(argv: list[str] | None = None) -> int:
     pin_threads()
     result = c3d_bench.run(args.data_root, args.window_s, args.seed, tuple(args.targets), not args.quiet)
     report = provenance(argv) | result
-    args.out.mkdir(parents=True, exist_ok=True)
-    write_json(args.out / "c3d_fill.json.gz", rounded(report))
-    text = c3d_bench.markdown(report)
-    with atomic_output(args.out / "c3d_fill.md") as tmp:
-        tmp.write_text(text)
-    print(text)
+    write_results(args.out / "c3d_fill", rounded(report), c3d_bench.markdown(report), json_suffix=".json.gz")
     return 0
 
 

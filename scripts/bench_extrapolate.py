@@ -19,8 +19,7 @@ from pathlib import Path
 
 from mocapnet.corpus import data_root
 from mocapnet.evaluate import extrapolate_bench as bench
-from mocapnet.evaluate.report import provenance, write_json
-from mocapnet.io.atomic import atomic_output
+from mocapnet.evaluate.results import provenance, write_results
 from mocapnet.threads import pin_threads
 
 REPO = Path(__file__).resolve().parents[1]
@@ -48,13 +47,8 @@ def main(argv: list[str] | None = None) -> int:
     pin_threads()
     result = bench.run(args.data_root, files, args.repeats or (2 if args.quick else 20), progress=True)
     report = provenance(argv) | result
-    args.out.mkdir(parents=True, exist_ok=True)
-    write_json(args.out / "extrapolate.json.gz", report)
-    text = bench.markdown(report)
-    with atomic_output(args.out / "extrapolate.md") as tmp:
-        tmp.write_text(text)
+    write_results(args.out / "extrapolate", report, bench.markdown(report), json_suffix=".json.gz")
     bench.plot(report, args.out / "extrapolate_error_vs_gap.png")
-    print(text)
     return 0
 
 

@@ -18,7 +18,7 @@ sys.path.insert(0, str(ROOT))  # the fuzzing engine lives in the test suite
 
 from mocapnet.corpus import data_root  # noqa: E402
 from mocapnet.evaluate.benchmark import git_commit  # noqa: E402
-from mocapnet.evaluate.report import markdown_table, rounded, write_results  # noqa: E402
+from mocapnet.evaluate.results import markdown_table, rounded, write_results  # noqa: E402
 from mocapnet.threads import pin_threads  # noqa: E402
 from tests.io.test_bvh_fuzz import fuzz_sources, run_mutations  # noqa: E402
 

@@ -34,7 +34,7 @@ from scipy.optimize import linear_sum_assignment
 
 from mocapnet.corrupt import corrupt_markers
 from mocapnet.evaluate.benchmark import gapfill_rigid_body, gapfill_spline, numpy_int_alias
-from mocapnet.evaluate.report import fmt, markdown_table
+from mocapnet.evaluate.results import fmt, markdown_table
 from mocapnet.fill import runs
 from mocapnet.io.atomic import MocapFileError
 from mocapnet.io.c3d import read_c3d

@@ -29,7 +29,7 @@ import numpy as np
 
 from mocapnet.corrupt import Corruption, corrupt_markers, gap_mask, motion_markers, point_gap_mask, seed_for
 from mocapnet.evaluate.benchmark import gapfill_rigid_body, gapfill_spline, gapfill_spline_as_shipped, numpy_int_alias
-from mocapnet.evaluate.report import fmt, markdown_table
+from mocapnet.evaluate.results import fmt, markdown_table
 from mocapnet.io.atomic import atomic_output
 from mocapnet.io.bvh import read_bvh
 from mocapnet.io.c3d import read_c3d

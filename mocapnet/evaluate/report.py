@@ -1,27 +1,22 @@
-"""Summaries of evaluation rows: console/markdown tables with ratios, CSV, and per-motion error plots; and
-what every results file of ``benchmarks/results`` shares (``fmt``, ``markdown_table``, ``provenance``,
-``write_json`` / ``read_json``, ``.gz`` written reproducibly)."""
+"""Summaries of evaluation rows: console/markdown tables with ratios, report sections, CSV, and per-motion
+error plots. Generic results-file helpers (``fmt``, ``markdown_table``, JSON dumps) are in ``results``."""
 
 from __future__ import annotations
 
 import csv
-import gzip
-import io
-import json
 import math
 import os
-import platform
-import shlex
-import sys
-from collections.abc import Iterable, Iterator, Sequence
-from contextlib import contextmanager
 from pathlib import Path
-from typing import IO, Any
 
 import numpy as np
 
-from mocapnet.evaluate.benchmark import REPO, git_commit
 from mocapnet.evaluate.harness import ROW_FIELDS, Evaluation, reference
+from mocapnet.evaluate.results import fmt, markdown_table, text_output
+from mocapnet.evaluate.results import provenance as provenance  # re-exported: the benchmarks import them from here
+from mocapnet.evaluate.results import read_json as read_json
+from mocapnet.evaluate.results import rounded as rounded
+from mocapnet.evaluate.results import write_json as write_json
+from mocapnet.evaluate.results import write_results as write_results
 from mocapnet.io.atomic import atomic_output
 from mocapnet.methods.registry import MethodSpec
 
@@ -69,17 +64,6 @@ def headline(ev: Evaluation) -> tuple[str, tuple[str, ...]]:
     """(metric, reference methods) for the ratio column: ``harness.reference``, the one rule."""
     ref = reference(ev.corruption, ev.space)
     return ref.metric, ref.methods
-
-
-def fmt(x: float | None, digits: int = 3) -> str:
-    """``x`` with ``digits`` decimals; "—" for None, NaN or infinity."""
-    return "—" if x is None or (isinstance(x, float) and not math.isfinite(x)) else f"{x:.{digits}f}"
-
-
-def markdown_table(head: Sequence[str], rows: Iterable[Sequence[Any]]) -> list[str]:
-    """Lines of a markdown table: the header, the rule and one line per row (cells formatted with ``str``)."""
-    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-    return lines + ["| " + " | ".join(str(c) for c in row) + " |" for row in rows]
 
 
 def table(ev: Evaluation, markdown: bool = False) -> str:
@@ -136,73 +120,11 @@ def evaluation_section(ev: Evaluation, plot: str | os.PathLike | None = None) ->
 def write_csv(path: str | os.PathLike, rows: list[dict]) -> None:
     """One line per (method, corruption, file, repeat) with the columns of ``ROW_FIELDS``; gzip-compressed
     (reproducibly: no name or time in the header) when ``path`` ends in ``.gz``."""
-    with _text_output(path, newline="") as fh:
+    with text_output(path, newline="") as fh:
         writer = csv.DictWriter(fh, fieldnames=list(ROW_FIELDS))
         writer.writeheader()
         for r in rows:
             writer.writerow({k: (f"{r[k]:.6g}" if isinstance(r[k], float) else r[k]) for k in ROW_FIELDS})
-
-
-@contextmanager
-def _text_output(path: str | os.PathLike, newline: str | None = None) -> Iterator[IO[str]]:
-    """A UTF-8 text stream written atomically to ``path``; gzip-compressed, reproducibly (no name or time in
-    the header: the same text gives the same bytes), when ``path`` ends in ``.gz``."""
-    with atomic_output(path) as tmp, open(tmp, "wb") as raw:
-        packed = gzip.GzipFile(filename="", mode="wb", fileobj=raw, mtime=0) if str(path).endswith(".gz") else None
-        with io.TextIOWrapper(packed or raw, encoding="utf-8", newline=newline) as fh:
-            yield fh
-
-
-def rounded(value: Any, digits: int = 6) -> Any:
-    """``value`` (nested dicts / lists) with floats rounded to ``digits`` significant digits."""
-    if isinstance(value, float):
-        return float(f"{value:.{digits}g}")
-    if isinstance(value, dict):
-        return {k: rounded(v, digits) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [rounded(v, digits) for v in value]
-    return value
-
-
-def write_json(path: str | os.PathLike, data: Any, indent: int | None = None) -> None:
-    """``data`` as JSON (compact unless ``indent``), atomically; gzip-compressed when ``path`` ends in ``.gz``
-    (per-row dumps: 5-10x smaller in git). NumPy scalars are written as numbers."""
-    with _text_output(path) as fh:
-        json.dump(data, fh, indent=indent, separators=None if indent else (",", ":"), default=float)
-        fh.write("\n")
-
-
-def write_results(
-    stem: str | os.PathLike, data: Any, text: str, json_suffix: str = ".json", indent: int | None = None
-) -> None:
-    """A benchmark's results: ``text`` (markdown) to ``stem.md`` and ``data`` to ``stem`` + ``json_suffix``
-    (``.json.gz`` for per-row dumps) with ``write_json``, each atomically, the folder made if needed; ``text``
-    is printed too."""
-    stem = Path(stem)
-    stem.parent.mkdir(parents=True, exist_ok=True)
-    write_json(stem.with_name(stem.name + json_suffix), data, indent)
-    with atomic_output(stem.with_name(stem.name + ".md")) as tmp:
-        tmp.write_text(text)
-    print(text)
-
-
-def read_json(path: str | os.PathLike) -> Any:
-    """A results file written by ``write_json`` (``.json`` or ``.json.gz``)."""
-    with (gzip.open if str(path).endswith(".gz") else open)(path, "rt", encoding="utf-8") as fh:
-        return json.load(fh)
-
-
-def provenance(argv: Sequence[str] | None = None) -> dict[str, str]:
-    """``command`` (this interpreter and script relative to the repo, then ``argv``, default the process's
-    arguments), ``git_commit`` and ``machine`` (processor, cores, niceness, versions, threads) of a run."""
-    args = sys.argv[1:] if argv is None else list(argv)
-    command = shlex.join([os.path.relpath(sys.executable, REPO), os.path.relpath(sys.argv[0], REPO), *args])
-    machine = (
-        f"{platform.processor() or platform.machine()}, {os.cpu_count()} CPUs shared with other jobs, process "
-        f"niceness {os.nice(0)}, Python {platform.python_version()}, NumPy {np.__version__}, "
-        f"OMP_NUM_THREADS={os.environ.get('OMP_NUM_THREADS', 'unset')}"
-    )
-    return {"command": command, "git_commit": git_commit(), "machine": machine}
 
 
 def plot_per_motion(ev: Evaluation, path: str | os.PathLike, title: str = "") -> None:
