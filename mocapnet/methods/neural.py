@@ -28,23 +28,10 @@ import numpy as np
 
 from mocapnet.methods.registry import MethodContext, register
 from mocapnet.motion import Motion
+from mocapnet.nn.variants import VARIANTS, accepts, method_of
 
-_EBF_VARIANTS = ("ebf-paper", "ebf-bias", "ebf-free")
 _HELP = "{what}; checkpoint: NAME=PATH, default: the shipped one for the skeleton; option mode=sequence|windowed"
 _INDEX = Path(__file__).resolve().parents[1] / "checkpoints" / "index.json"
-
-
-def _kind_of(model: object) -> str:
-    """The method a loaded network serves: an EBF variant, ``bf``, ``ebd`` or ``nn``."""
-    from mocapnet.nn.checkpoints import variant_of
-
-    name = type(model).__name__
-    return variant_of(dict(model.hparams)) if name == "EBF" else {"EBD": "ebd", "WindowMLP": "nn"}[name]
-
-
-def _accepts(method: str, kind: str) -> bool:
-    """Whether a network of ``kind`` may run as ``method`` (``ebf`` takes every EBF variant with an encoder)."""
-    return kind == method or (method == "ebf" and kind in _EBF_VARIANTS)
 
 
 def _resolver(method: str, path: str | None) -> Callable[[Motion], object]:
@@ -57,8 +44,8 @@ def _resolver(method: str, path: str | None) -> Callable[[Motion], object]:
         if not Path(path).is_file():
             raise FileNotFoundError(f"{method}: checkpoint {path} not found")
         model = load_model(path)
-        kind = _kind_of(model)
-        if not _accepts(method, kind):
+        kind = method_of(type(model).__name__, dict(model.hparams))
+        if not accepts(method, kind):
             raise ValueError(f"{method}: {path} holds a {type(model).__name__} network ({kind}), not {method}")
 
         def given(motion: Motion) -> object:
@@ -118,15 +105,8 @@ def _single(method: str):
     return factory
 
 
-_WHAT = {
-    "ebf": f"EBF, the best shipped variant for the skeleton: {_shipped_ebf_recipes()}",
-    "ebf-paper": "EBF as in the paper: learned sigma-only Gaussian filter per channel per frame, no bias",
-    "ebf-bias": "EBF with a per-channel bias (residual) output on top of the Gaussian filter",
-    "ebf-free": "EBF with a free-shape 31-tap kernel per channel per frame (with or without the bias output)",
-    "ebd": "EBD: learned gap filling (missing samples only; observed samples are never changed)",
-    "bf": "BF ablation: EBF without its encoder",
-    "nn": "NN ablation: dense network over a 31-frame window",
-}
+_WHAT = {v.name: v.what for v in VARIANTS}
+_WHAT["ebf"] += f": {_shipped_ebf_recipes()}"
 for _name, _what in _WHAT.items():
     register(_name, "angles", help=_HELP.format(what=_what))(_single(_name))
 

@@ -34,7 +34,9 @@ import torch
 
 from mocapnet.io.atomic import MocapFileError
 from mocapnet.motion import Skeleton
+from mocapnet.nn import variants
 from mocapnet.nn.features import topology_hash
+from mocapnet.nn.variants import EBF_VARIANTS
 
 CHECKPOINT_DIR = Path(__file__).resolve().parents[1] / "checkpoints"
 INDEX = CHECKPOINT_DIR / "index.json"
@@ -108,26 +110,9 @@ def read_checkpoint(path: str | PathLike) -> dict[str, Any]:
     return ckpt
 
 
-#: The EBF variants by name (issue 11): the paper's σ-only Gaussian filter; with a per-channel bias (residual)
-#: output; with a free-shape kernel (softmax over the taps, with or without the bias output).
-EBF_VARIANTS = ("ebf-paper", "ebf-bias", "ebf-free")
-
-
-def variant_of(hparams: dict[str, Any]) -> str:
-    """The method an EBF network's hyper-parameters make: ``bf`` (no encoder) or one of ``EBF_VARIANTS``."""
-    if not hparams.get("encoder_layers", 4):
-        return "bf"
-    if hparams.get("filter_shape", "gaussian") == "free":
-        return "ebf-free"
-    return "ebf-bias" if hparams.get("bias") else "ebf-paper"
-
-
 def method_of(checkpoint: dict[str, Any]) -> str:
-    """The method name a checkpoint serves: an EBF variant (``EBF_VARIANTS``), ``bf``, ``ebd`` or ``nn``."""
-    kind = checkpoint["mocapnet_model"]
-    if kind == "EBF":
-        return variant_of(checkpoint["hyper_parameters"])
-    return {"EBD": "ebd", "WindowMLP": "nn"}[kind]
+    """The method name a checkpoint serves (``variants.method_of``): an EBF variant, ``bf``, ``ebd`` or ``nn``."""
+    return variants.method_of(checkpoint["mocapnet_model"], checkpoint["hyper_parameters"])
 
 
 def read_index() -> list[dict[str, Any]]:

@@ -6,13 +6,28 @@ bidirectional LSTM layers of ``hidden`` units per direction step through the cli
 step (windowed mode: ``half`` steps each way, i.e. 15 × 4 = 60 frames); a decoder of ``decoder_layers`` tanh
 layers (last one linear) gives, for every channel, a correction to the interpolated value in channel scales.
 The output replaces only the missing samples; observed samples pass through unchanged.
+
+At inference the network's fill is not used as it comes (``blend_gaps``, issue 11): per gap (one run of
+missing frames of one joint) it is blended with the better interpolation for that gap length (cubic spline
+for short gaps, linear for long ones), with a weight that is 0 for one-frame gaps, grows with the gap length
+and, inside a gap, grows from each edge over ``taper_s`` seconds (the network's fill is least reliable next
+to the observed frames, where interpolation is best). A self-check then falls back to the interpolation for
+every gap whose blended fill is less continuous than the interpolation: a fill value that could not be
+reached from the observed neighbours at the channel's own speed (``speed_quantile`` of its observed
+frame-to-frame steps × ``speed_factor``). The constants of ``GAP_BLEND`` were chosen on bandai2 fold 1 only
+(the rule and the grid: ``scripts/bench_ebd.py --tune``).
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
+import numpy as np
 import torch
 
+from mocapnet.fill import lerp_fill, mask_groups, runs, spline_fill
 from mocapnet.nn.base import CleanerModule
+from mocapnet.nn.features import wrap_near
 from mocapnet.nn.layers import BLSTM, mlp, tapered
 
 
@@ -72,3 +87,100 @@ class EBD(CleanerModule):
     def loss_terms(self, batch: dict[str, torch.Tensor], pred: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Squared error over the missing samples only."""
         return (pred - batch["clean"]) ** 2, batch["mask"]
+
+
+@dataclass(frozen=True)
+class GapBlend:
+    """How ``blend_gaps`` combines EBD's fill with interpolation (module docstring). Times in seconds.
+
+    ``spline_max_s``: gaps up to this long start from the cubic spline, longer ones from linear interpolation.
+    ``gate_s``: the network's weight is 0 for gaps up to ``gate_s[0]``, rising linearly to 1 at ``gate_s[1]``.
+    ``taper_s``: inside a gap, the weight rises linearly from ``1 / (taper_s·fps)`` next to an observed frame to
+    1 at ``taper_s`` from it. ``speed_quantile`` (percent) and ``speed_factor``: the self-check's speed bound per
+    channel, in degrees per frame (``speed_factor = inf`` turns the self-check off).
+    """
+
+    spline_max_s: float = 0.5
+    gate_s: tuple[float, float] = (1 / 30, 0.2)
+    taper_s: float = 0.2
+    speed_quantile: float = 99.0
+    speed_factor: float = 2.0
+
+
+#: The shipped setting, chosen on bandai2 fold 1 (``scripts/bench_ebd.py --tune``).
+GAP_BLEND = GapBlend()
+
+
+def channel_speed(channels: np.ndarray, mask: np.ndarray, quantile: float) -> np.ndarray:
+    """Per channel, the ``quantile`` (percent) of ``|x[t+1] - x[t]|`` (degrees per frame, wrapped) over the
+    frame pairs where both samples are observed; ``inf`` for a channel with no such pair. ``channels`` and
+    ``mask`` ``[T, C]`` → ``[C]``."""
+    steps = np.abs(wrap_near(channels[1:], channels[:-1]) - channels[:-1])
+    steps[mask[1:] | mask[:-1]] = np.nan
+    out = np.full(channels.shape[1], np.inf)
+    seen = ~np.isnan(steps).all(axis=0)
+    if seen.any():
+        out[seen] = np.nanpercentile(steps[:, seen], quantile, axis=0)
+    return out
+
+
+def _cone_excess(fill: np.ndarray, channels: np.ndarray, a: int, b: int, speed: np.ndarray) -> float:
+    """How far (degrees, ≤ 0 when nowhere) the fill ``[b - a, C']`` of the gap ``[a, b)`` leaves the values
+    reachable from the observed frames ``a - 1`` and ``b`` (``channels [T, C']``) at ``speed [C']`` degrees
+    per frame."""
+    t = np.arange(a, b)[:, None]
+    worst = -np.inf
+    if a > 0:
+        edge = channels[a - 1]
+        worst = max(worst, float((np.abs(wrap_near(fill, edge) - edge) - speed * (t - a + 1)).max()))
+    if b < len(channels):
+        edge = channels[b]
+        worst = max(worst, float((np.abs(wrap_near(fill, edge) - edge) - speed * (b - t)).max()))
+    return worst
+
+
+def blend_gaps(
+    channels: np.ndarray,
+    mask: np.ndarray,
+    net: np.ndarray,
+    fps: float,
+    blend: GapBlend = GAP_BLEND,
+    interpolated: tuple[np.ndarray, np.ndarray] | None = None,
+) -> tuple[np.ndarray, int]:
+    """EBD's output made final (module docstring): ``channels [T, C]`` (degrees; any value where ``mask [T, C]``
+    is True), ``net [T, C]`` the network's fill (degrees), ``fps`` frames per second → ``(filled [T, C], number of
+    gaps the self-check returned to interpolation)``. Observed samples are returned unchanged; each missing
+    sample becomes ``base + w · (net - base)`` with ``w`` the gate × taper weight of its gap and position.
+    ``interpolated``: ``(lerp_fill, spline_fill)`` of ``channels`` when the caller has them (tuning), else
+    computed here."""
+    out = np.where(mask, np.nan, channels).astype(np.float64)
+    spline_max = blend.spline_max_s * fps
+    groups = mask_groups(mask)
+    if interpolated is None:
+        short = any(b - a <= spline_max for cols in groups.values() for a, b in runs(mask[:, cols[0]]))
+        lerp = lerp_fill(out, mask)
+        interpolated = lerp, spline_fill(out, mask) if short else lerp
+    lerp, spline = interpolated
+    check = bool(np.isfinite(blend.speed_factor))
+    speed = channel_speed(out, mask, blend.speed_quantile) * blend.speed_factor if check else None
+    lo, hi, taper = blend.gate_s[0] * fps, blend.gate_s[1] * fps, max(blend.taper_s * fps, 1.0)
+    fallbacks = 0
+    for cols in groups.values():
+        for a, b in runs(mask[:, cols[0]]):
+            length = b - a
+            base = (spline if length <= spline_max else lerp)[a:b][:, cols]
+            if np.isnan(base).any():  # no observed sample in these channels: only the network has a value
+                out[a:b, cols] = net[a:b, cols]
+                continue
+            gate = float(np.clip((length - lo) / max(hi - lo, 1e-9), 0.0, 1.0))
+            t = np.arange(a, b)
+            edge = np.minimum(t - a if a > 0 else np.inf, b - 1 - t if b < len(out) else np.inf)
+            weight = gate * np.minimum(1.0, (np.minimum(edge, taper) + 1.0) / taper)[:, None]
+            fill = base + weight * (wrap_near(net[a:b][:, cols], base) - base)
+            if check and (
+                _cone_excess(fill, out[:, cols], a, b, speed[cols])
+                > max(_cone_excess(base, out[:, cols], a, b, speed[cols]), 0.0) + 1e-6
+            ):
+                fill, fallbacks = base, fallbacks + 1
+            out[a:b, cols] = fill
+    return out, fallbacks

@@ -11,6 +11,7 @@ Modes (same weights):
 
 from __future__ import annotations
 
+import importlib
 import os
 import warnings
 from collections import deque
@@ -26,7 +27,7 @@ from mocapnet.io.atomic import MocapFileError
 from mocapnet.motion import Skeleton
 from mocapnet.nn.base import CleanerModule
 from mocapnet.nn.checkpoints import read_checkpoint
-from mocapnet.nn.ebd import EBD
+from mocapnet.nn.ebd import EBD, GAP_BLEND, GapBlend, blend_gaps
 from mocapnet.nn.ebf import EBF
 from mocapnet.nn.features import (
     context_chain,
@@ -36,11 +37,13 @@ from mocapnet.nn.features import (
     scored_index,
     topology_hash,
 )
-from mocapnet.nn.window_mlp import WindowMLP
+from mocapnet.nn.variants import MODEL_MODULES
 from mocapnet.threads import pin_threads
 
 MODES = ("sequence", "windowed")
-MODEL_CLASSES: dict[str, type[CleanerModule]] = {"EBF": EBF, "EBD": EBD, "WindowMLP": WindowMLP}
+MODEL_CLASSES: dict[str, type[CleanerModule]] = {
+    name: getattr(importlib.import_module(module), name) for name, module in MODEL_MODULES.items()
+}
 
 
 def inference_threads() -> int:
@@ -126,13 +129,20 @@ def predict_sequence(model: CleanerModule, batch: dict[str, torch.Tensor]) -> to
 
 @torch.inference_mode()
 def clean_channels(
-    model: CleanerModule, channels: np.ndarray, mask: np.ndarray, skeleton: Skeleton, fps: float, mode: str = "sequence"
+    model: CleanerModule,
+    channels: np.ndarray,
+    mask: np.ndarray,
+    skeleton: Skeleton,
+    fps: float,
+    mode: str = "sequence",
+    gap_blend: GapBlend | None = GAP_BLEND,
 ) -> np.ndarray:
     """Clean one clip: ``channels [T, C]`` (degrees, NaN where ``mask [T, C]`` is True) → ``[T, C]``.
 
     Gaps are first filled by linear interpolation; only the scored channels change (EBD changes only their
     missing samples). ``mode``: ``"sequence"`` (in overlapping chunks on long clips, ``predict_sequence``) or
-    ``"windowed"`` (module docstring).
+    ``"windowed"`` (module docstring). ``gap_blend``: how EBD's fill is blended with interpolation and
+    self-checked (``ebd.blend_gaps``); None keeps the network's fill as it comes.
     """
     if mode not in MODES:
         raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
@@ -148,7 +158,10 @@ def clean_channels(
     del x, w
     if isinstance(model, EBD):
         scored = result[:, idx]
-        result[:, idx] = np.where(mask[:, idx], out.numpy(), scored)
+        if gap_blend is None:
+            result[:, idx] = np.where(mask[:, idx], out.numpy(), scored)
+        else:
+            result[:, idx] = blend_gaps(scored, mask[:, idx], out.numpy(), fps, gap_blend)[0]
     else:
         result[:, idx] = out.numpy()
     return result

@@ -1,0 +1,219 @@
+"""Gap filling scored gap by gap (issue 11): RMS error per gap-length bin against lerp and spline, and the
+score that chose EBD's blend with interpolation (``mocapnet.nn.ebd.GAP_BLEND``) on bandai2 fold 1.
+
+A gap is one run of missing frames of one scored joint; its error is taken over that joint's scored
+channels (the mask marks whole joints). Clips are corrupted with the protocol's seeds (``corrupt.seed_for``),
+as ``harness.evaluate_angles`` does, so the headline figures here equal the harness's ``gap_err_deg``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from mocapnet.corpus import load_corpus
+from mocapnet.corrupt import corrupt_motion, seed_for
+from mocapnet.evaluate.metrics import gap_err_deg, wrapped_diff
+from mocapnet.fill import mask_groups, runs
+from mocapnet.motion import Motion
+
+#: Gap-length bins in frames, inclusive (issue 11: ≤ 5, 5–15, 15–30, 30–60, > 60).
+GAP_BINS = ((1, 5), (6, 15), (16, 30), (31, 60), (61, 10**9))
+BIN_LABELS = ("≤ 5", "6–15", "16–30", "31–60", "> 60")
+#: The interpolations every gap filler has to beat.
+REFERENCES = ("lerp", "spline")
+#: The corruptions of the issue's done-when (``test``) and those the blend was tuned on (``tune``).
+TEST = ("gaps", "gaps-long", "segment-gap:left-arm:0.5", "segment-gap:left-arm:2")
+TUNE = (*TEST, "segment-gap:right-leg:1")
+OFF = float("inf")
+
+
+@dataclass
+class FilledClip:
+    """One corrupted clip: the scored channels ``truth [T, C_s]`` (degrees), ``mask [T, C_s]`` (True =
+    missing), the frame rate, and each filler's output ``[T, C_s]`` by name."""
+
+    name: str
+    truth: np.ndarray
+    mask: np.ndarray
+    fps: float
+    outputs: dict[str, np.ndarray] = field(default_factory=dict)
+
+
+def fill_clips(
+    corpus: str,
+    clips: Sequence[Motion],
+    corruption: str,
+    repeats: int,
+    fillers: Mapping[str, Callable[[Motion, np.ndarray], np.ndarray]],
+) -> list[FilledClip]:
+    """Corrupt each clip ``repeats`` times (protocol seeds of ``corpus``; clips too short for the corruption
+    are left out) and fill it with every ``fillers[name](noisy motion, mask [T, C]) -> [T, C]``; only the
+    scored channels are kept. Clips without a missing sample are left out (no gap error)."""
+    out = []
+    for motion in clips:
+        scored = motion.skeleton.scored_mask
+        for rep in range(repeats):
+            rng = np.random.default_rng(seed_for(corpus, motion.name, rep, corruption))
+            try:
+                noisy, mask = corrupt_motion(motion, corruption, rng)
+            except ValueError:
+                break
+            if not mask[:, scored].any():
+                continue
+            noisy_motion = motion.with_channels(noisy)
+            outputs = {name: fill(noisy_motion, mask)[:, scored] for name, fill in fillers.items()}
+            out.append(FilledClip(motion.name, motion.channels[:, scored], mask[:, scored], motion.fps, outputs))
+    return out
+
+
+def headline(items: Iterable[FilledClip], name: str) -> float:
+    """Mean over clips of each clip's RMS gap error (degrees): the harness's ``gap_err_deg`` headline."""
+    return float(np.mean([gap_err_deg(it.outputs[name], it.truth, it.mask) for it in items]))
+
+
+def bin_errors(items: Sequence[FilledClip], names: Sequence[str]) -> list[dict]:
+    """Per gap-length bin: ``{"bin", "gaps", name: RMS degrees (NaN without gaps), ...}`` pooled over every
+    gap of ``items``."""
+    sse = np.zeros((len(names), len(GAP_BINS)))
+    count = np.zeros(len(GAP_BINS))
+    gaps = np.zeros(len(GAP_BINS), dtype=int)
+    for it in items:
+        for cols in mask_groups(it.mask).values():
+            for a, b in runs(it.mask[:, cols[0]]):
+                k = next(i for i, (lo, hi) in enumerate(GAP_BINS) if lo <= b - a <= hi)
+                gaps[k] += 1
+                count[k] += (b - a) * len(cols)
+                truth = it.truth[a:b, cols]
+                for m, name in enumerate(names):
+                    sse[m, k] += float((wrapped_diff(it.outputs[name][a:b, cols], truth) ** 2).sum())
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rms = np.sqrt(sse / count)
+    return [
+        {"bin": BIN_LABELS[k], "gaps": int(gaps[k]), **{n: float(rms[m, k]) for m, n in enumerate(names)}}
+        for k in range(len(GAP_BINS))
+    ]
+
+
+def ratios(filled: Mapping[str, Sequence[FilledClip]], name: str) -> dict[str, float]:
+    """The selection score's ratios of ``name``: per corruption its headline ÷ the better of lerp's and
+    spline's, and per gap-length bin (gaps of every corruption pooled) its RMS ÷ the better of theirs."""
+    out = {c: headline(items, name) / min(headline(items, r) for r in REFERENCES) for c, items in filled.items()}
+    for row in bin_errors([it for items in filled.values() for it in items], [name, *REFERENCES]):
+        if row["gaps"]:
+            out[f"bin {row['bin']}"] = row[name] / min(row[r] for r in REFERENCES)
+    return out
+
+
+def select(scores: Mapping[str, Mapping[str, float]], tie: float = 0.005) -> str:
+    """The pre-written selection rule: the candidate with the smallest worst ratio; candidates within ``tie``
+    of that are ranked by their mean ratio."""
+    worst = {k: max(v.values()) for k, v in scores.items()}
+    best = min(worst.values())
+    return min((k for k in scores if worst[k] <= best + tie), key=lambda k: float(np.mean(list(scores[k].values()))))
+
+
+def candidates() -> dict:
+    """Blend settings scored by ``tune``: one parameter at a time around the shipped ``GAP_BLEND``; "no
+    check" (self-check off) is the self-check's baseline."""
+    from mocapnet.nn.ebd import GAP_BLEND
+
+    return {
+        "shipped": GAP_BLEND,
+        "no check": dataclasses.replace(GAP_BLEND, speed_factor=OFF),
+        "no taper": dataclasses.replace(GAP_BLEND, taper_s=0.0),
+        "no gate": dataclasses.replace(GAP_BLEND, gate_s=(0.0, 0.0)),
+        "lerp base": dataclasses.replace(GAP_BLEND, spline_max_s=0.0),
+        "spline <= 0.25 s": dataclasses.replace(GAP_BLEND, spline_max_s=0.25),
+        **{f"check x{f:g}": dataclasses.replace(GAP_BLEND, speed_factor=f) for f in (1.0, 1.5, 3.0)},
+        "check q95": dataclasses.replace(GAP_BLEND, speed_quantile=95.0),
+        "check q100": dataclasses.replace(GAP_BLEND, speed_quantile=100.0),
+    }
+
+
+def raw_filler(clip: Motion) -> Callable[[Motion, np.ndarray], np.ndarray]:
+    """The shipped EBD network's fill as it comes (no blend), for clips of ``clip``'s skeleton."""
+    from mocapnet.nn.checkpoints import shipped_checkpoint
+    from mocapnet.nn.infer import clean_channels, load_model
+
+    model = load_model(shipped_checkpoint("ebd", clip.skeleton))
+    return lambda m, mask: clean_channels(model, m.channels, mask, m.skeleton, m.fps, gap_blend=None)
+
+
+def tune(repeats: int) -> dict:
+    """Score ``candidates()`` and the raw network on bandai2 fold 1 (``ratios``): the blend geometry selected by
+    ``select`` and the self-check by the most fallbacks within 0.5 % of the mean ratio without it."""
+    from mocapnet.methods.registry import build_method
+    from mocapnet.nn.ebd import blend_gaps
+
+    clips = load_corpus("bandai2", progress=False).split(0)[1]
+    fillers = {n: build_method(n).clean for n in REFERENCES} | {"ebd-raw": raw_filler(clips[0])}
+    filled = {c: fill_clips("bandai2", clips, c, repeats, fillers) for c in TUNE}
+    scores, fallbacks = {"ebd-raw": ratios(filled, "ebd-raw")}, {}
+    for label, blend in candidates().items():
+        fallbacks[label] = 0
+        for it in (it for items in filled.values() for it in items):
+            o = it.outputs
+            out, n = blend_gaps(o["lerp"], it.mask, o["ebd-raw"], it.fps, blend, (o["lerp"], o["spline"]))
+            it.outputs[label], fallbacks[label] = out, fallbacks[label] + n
+        scores[label] = ratios(filled, label)
+        for it in (it for items in filled.values() for it in items):
+            del it.outputs[label]
+        print(label, f"worst {max(scores[label].values()):.3f}", f"fallbacks {fallbacks[label]}", flush=True)
+    mean = {k: float(np.mean(list(v.values()))) for k, v in scores.items()}
+    checks = [k for k in scores if k.startswith("check") or k == "shipped"]
+    check = max((k for k in checks if mean[k] <= 1.005 * mean["no check"]), key=fallbacks.get, default="no check")
+    blends = {k: v for k, v in scores.items() if k not in checks}  # blend geometry, self-check off or shipped
+    return {"scores": scores, "fallbacks": fallbacks, "selected": select(blends), "check": check}
+
+
+def test(corpus: str, n_clips: int | None, repeats: int) -> dict:
+    """lerp, spline, the raw network and ``ebd`` on ``n_clips`` evenly spaced fold-0 clips (default all):
+    headline gap errors per corruption of ``TEST`` and RMS per gap-length bin."""
+    from mocapnet.methods.registry import build_method
+
+    clips = load_corpus(corpus, progress=False).split(0)[2]
+    clips = clips[:: max(1, len(clips) // n_clips)][:n_clips] if n_clips else clips
+    fillers = {n: build_method(n).clean for n in (*REFERENCES, "ebd")} | {"ebd-raw": raw_filler(clips[0])}
+    names = [*REFERENCES, "ebd-raw", "ebd"]
+    rows, bins = [], []
+    for c in TEST:
+        items = fill_clips(corpus, clips, c, repeats, fillers)
+        rows.append({"corruption": c, "clips": len({it.name for it in items}), "repeats": repeats})
+        rows[-1] |= {n: headline(items, n) for n in names}
+        bins += [{"corruption": c, **b} for b in bin_errors(items, names) if b["gaps"]]
+        print(corpus, c, {n: round(rows[-1][n], 3) for n in names}, flush=True)
+    return {"corpus": corpus, "headline": rows, "bins": bins, "names": names}
+
+
+def markdown(result: dict) -> str:
+    """``test``'s result as Markdown tables."""
+    names, best = result["names"], lambda r: min(r[n] for n in REFERENCES)
+    lines = [f"# EBD gap filling, {result['corpus']} fold 0\n", f"Command: `{result['command']}`\n"]
+    lines += ["| corruption | clips × repeats | " + " | ".join(names) + " | ebd ÷ best of lerp, spline |"]
+    lines += ["|---" * (len(names) + 3) + "|"]
+    for r in result["headline"]:
+        cells = " | ".join(f"{r[n]:.3f}" for n in names)
+        lines.append(f"| {r['corruption']} | {r['clips']} × {r['repeats']} | {cells} | {r['ebd'] / best(r):.3f} |")
+    lines += ["", "RMS gap error (°) per gap length in frames:", ""]
+    lines += ["| corruption | bin | gaps | " + " | ".join(names) + " | ebd ÷ best |", "|---" * (len(names) + 4) + "|"]
+    for b in result["bins"]:
+        cells = " | ".join(f"{b[n]:.3f}" for n in names)
+        lines.append(f"| {b['corruption']} | {b['bin']} | {b['gaps']} | {cells} | {b['ebd'] / best(b):.3f} |")
+    return "\n".join(lines) + "\n"
+
+
+def tune_markdown(result: dict) -> str:
+    """``tune``'s result as a Markdown table."""
+    cols = list(result["scores"]["shipped"])
+    lines = ["# EBD blend settings on bandai2 fold 1 (ratio to the better of lerp and spline)\n"]
+    lines += [f"Command: `{result['command']}`; selected blend: {result['selected']}; self-check: {result['check']}\n"]
+    lines += ["| setting | fallbacks | worst | mean | " + " | ".join(cols) + " |", "|---" * (len(cols) + 4) + "|"]
+    for k, v in result["scores"].items():
+        vals = " | ".join(f"{v.get(c, float('nan')):.3f}" for c in cols)
+        worst, mean = max(v.values()), np.mean(list(v.values()))
+        lines.append(f"| {k} | {result['fallbacks'].get(k, '—')} | {worst:.3f} | {mean:.3f} | {vals} |")
+    return "\n".join(lines) + "\n"

@@ -1,0 +1,58 @@
+"""Gap errors by gap length and the blend's selection rule (``mocapnet.evaluate.gap_bins``)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from mocapnet.evaluate.gap_bins import FilledClip, bin_errors, fill_clips, headline, ratios, select
+from mocapnet.evaluate.metrics import gap_err_deg
+
+
+def clip_with_gaps() -> FilledClip:
+    """Two scored joints of two channels each: joint 0 misses 3 frames, joint 1 misses 20 frames. ``lerp`` is
+    off by 1° in every missing sample, ``spline`` by 2°, ``good`` by 0.5° in the short gap and 3° in the long."""
+    truth = np.zeros((100, 4))
+    mask = np.zeros(truth.shape, dtype=bool)
+    mask[10:13, :2] = True
+    mask[40:60, 2:] = True
+    good = truth + np.where(mask, 0.5, 0.0)
+    good[40:60, 2:] = 3.0
+    outputs = {"lerp": truth + mask * 1.0, "spline": truth + mask * 2.0, "good": good}
+    return FilledClip("a", truth, mask, 30.0, outputs)
+
+
+def test_bins_pool_each_gap_over_its_channels():
+    rows = bin_errors([clip_with_gaps()], ["lerp", "spline", "good"])
+    assert [r["gaps"] for r in rows] == [1, 0, 1, 0, 0]
+    assert rows[0]["good"] == pytest.approx(0.5) and rows[2]["good"] == pytest.approx(3.0)
+    assert rows[0]["lerp"] == pytest.approx(1.0) and rows[2]["spline"] == pytest.approx(2.0)
+    assert np.isnan(rows[1]["good"])
+
+
+def test_headline_is_the_harness_gap_error_and_ratios_use_the_better_reference():
+    item = clip_with_gaps()
+    assert headline([item], "good") == pytest.approx(gap_err_deg(item.outputs["good"], item.truth, item.mask))
+    r = ratios({"gaps": [item]}, "good")
+    assert r["gaps"] == pytest.approx(headline([item], "good") / 1.0)
+    assert r["bin ≤ 5"] == pytest.approx(0.5) and r["bin 16–30"] == pytest.approx(3.0)
+
+
+def test_select_ranks_near_ties_of_the_worst_ratio_by_the_mean():
+    scores = {"a": {"x": 0.90, "y": 0.50}, "b": {"x": 0.903, "y": 0.40}, "c": {"x": 0.95, "y": 0.10}}
+    assert select(scores) == "b"
+    assert select(scores, tie=0.0) == "a"
+
+
+def test_fill_clips_uses_protocol_seeds_and_scored_channels(cmu_short):
+    calls = []
+
+    def fill(motion, mask):
+        calls.append(mask.copy())
+        return np.where(mask, 0.0, motion.channels)
+
+    items = fill_clips("sample", [cmu_short], "gaps", 2, {"zero": fill})
+    assert len(items) == 2 and not np.array_equal(calls[0], calls[1])
+    scored = cmu_short.skeleton.scored_mask
+    assert items[0].truth.shape == (600, int(scored.sum()))
+    np.testing.assert_array_equal(items[0].mask, calls[0][:, scored])
