@@ -3,7 +3,16 @@ optimiser, and validation that accumulates one RMS error over a whole validation
 
 A batch is a dict of float32 tensors (see ``mocapnet.nn.data``): ``filled [B, T, C]`` the corrupted scored
 channels with gaps linearly interpolated (degrees), ``mask [B, T, C]`` True where missing, ``clean [B, T, C]``
-the truth (degrees), ``angvel [B, T, 3]`` the root angular velocity (rad/s).
+the truth (degrees), ``angvel [B, T, 3]`` the root angular velocity (rad/s); optionally the clip statistics
+of ``NORM_KEYS`` (``[B, 1, C]``, ``[B, 1, C]``, ``[B, 1, 3]``) that a ``norm="clip"`` network normalises with.
+
+Input normalisation (``norm`` hyper-parameter of the networks that offer it, default ``"corpus"``):
+
+* ``"corpus"``: fixed statistics of the training clips, kept as buffers (``features.Normaliser``);
+* ``"clip"``: each clip's own statistics of its (noisy) input, ``clip_statistics``: circular centre and std
+  per channel, RMS of the root angular velocity. Protocol noise is ``K·σ_c`` with ``σ_c`` the clip's own
+  std, so after dividing by the clip's std every clip shows the network the same relative noise, whatever its
+  corpus, performer or amplitude.
 """
 
 from __future__ import annotations
@@ -16,7 +25,25 @@ import lightning as L
 import numpy as np
 import torch
 
-from mocapnet.nn.features import Normaliser
+from mocapnet.nn.features import MIN_SCALE_DEG, Normaliser
+
+#: Input normalisation modes (module docstring).
+NORMS = ("corpus", "clip")
+#: Batch keys of a clip's input statistics (``clip_statistics``).
+NORM_KEYS = ("center", "scale", "angvel_scale")
+
+
+def clip_statistics(filled: torch.Tensor, angvel: torch.Tensor) -> dict[str, torch.Tensor]:
+    """A clip's own input statistics, reduced over time (dim -2, kept): ``filled [..., T, C]`` (degrees) →
+    ``center [..., 1, C]`` circular mean (degrees), ``scale [..., 1, C]`` std after wrapping into
+    ``center ± 180`` (degrees, at least ``MIN_SCALE_DEG``); ``angvel [..., T, 3]`` (rad/s) → ``angvel_scale
+    [..., 1, 3]`` RMS (at least 1e-3). The same formulas as ``features.Normaliser.fit`` on one clip."""
+    rad = torch.deg2rad(filled)
+    center = torch.rad2deg(torch.atan2(rad.sin().mean(-2, keepdim=True), rad.cos().mean(-2, keepdim=True)))
+    wrapped = torch.remainder(filled - center + 180.0, 360.0) - 180.0
+    scale = wrapped.std(-2, unbiased=False, keepdim=True).clamp(min=MIN_SCALE_DEG)
+    angvel_scale = angvel.square().mean(-2, keepdim=True).sqrt().clamp(min=1e-3)
+    return {"center": center, "scale": scale, "angvel_scale": angvel_scale}
 
 
 class CleanerModule(L.LightningModule, ABC):
@@ -42,14 +69,28 @@ class CleanerModule(L.LightningModule, ABC):
         self.scale.copy_(torch.as_tensor(norm.scale, dtype=torch.float32))
         self.angvel_scale.copy_(torch.as_tensor(norm.angvel_scale, dtype=torch.float32))
 
-    def normalise(self, x: torch.Tensor) -> torch.Tensor:
-        """Scored channels ``[..., C]`` (degrees) → wrapped into ``center ± 180``, centred, scaled, clipped to
-        ±8 (so a pose far outside the training range cannot saturate the network)."""
-        return ((torch.remainder(x - self.center + 180.0, 360.0) - 180.0) / self.scale).clamp(-8.0, 8.0)
+    def input_stats(
+        self, filled: torch.Tensor, angvel: torch.Tensor, stats: dict[str, torch.Tensor] | None = None
+    ) -> dict[str, torch.Tensor]:
+        """The statistics the inputs are normalised with (``NORM_KEYS``): the corpus buffers (``norm="corpus"``),
+        else ``stats`` when given (a clip's statistics computed elsewhere, e.g. over a whole clip cut into
+        chunks), else ``clip_statistics(filled [..., T, C], angvel [..., T, 3])``."""
+        if self.hparams.get("norm", "corpus") == "corpus":
+            return {"center": self.center, "scale": self.scale, "angvel_scale": self.angvel_scale}
+        if stats is not None:
+            return {k: stats[k] for k in NORM_KEYS}
+        return clip_statistics(filled, angvel)
 
-    def angvel_features(self, angvel: torch.Tensor) -> torch.Tensor:
-        """Root angular velocity ``[..., 3]`` (rad/s) → scaled, clipped to ±8."""
-        return (angvel / self.angvel_scale).clamp(-8.0, 8.0)
+    def normalise(self, x: torch.Tensor, stats: dict[str, torch.Tensor] | None = None) -> torch.Tensor:
+        """Scored channels ``[..., C]`` (degrees) → wrapped into ``center ± 180``, centred, scaled, clipped to
+        ±8 (so a pose far outside the training range cannot saturate the network). ``stats``: from
+        ``input_stats`` (default: the corpus buffers)."""
+        center, scale = (self.center, self.scale) if stats is None else (stats["center"], stats["scale"])
+        return ((torch.remainder(x - center + 180.0, 360.0) - 180.0) / scale).clamp(-8.0, 8.0)
+
+    def angvel_features(self, angvel: torch.Tensor, stats: dict[str, torch.Tensor] | None = None) -> torch.Tensor:
+        """Root angular velocity ``[..., 3]`` (rad/s) → scaled, clipped to ±8 (``stats`` as in ``normalise``)."""
+        return (angvel / (self.angvel_scale if stats is None else stats["angvel_scale"])).clamp(-8.0, 8.0)
 
     def loss_terms(self, batch: dict[str, torch.Tensor], pred: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Squared errors (degrees²) and the boolean selection ``[B, T, C]`` they are averaged over."""

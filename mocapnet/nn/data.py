@@ -26,6 +26,12 @@ lateral axis is Y, the shoulders' Z), so a swap would need a per-joint rest-fram
 heading is not needed: the only root input, the hips' angular velocity, is expressed in the hips' own frame.
 
 Validation clips are corrupted once with ``corrupt_motion`` and the protocol's seeds (repeat 0).
+
+Clip statistics (``base.NORM_KEYS``, used by ``norm="clip"`` networks). A validation clip carries those of its
+whole noisy input (``base.clip_statistics``), as inference computes them. A training crop carries those its
+whole clip would have with the crop's noise (``crop_statistics``): the clean clip's circular centre shifted by
+the crop's mean noise, the clean clip's variance plus the crop's noise variance, the clean clip's angular
+velocity RMS times the time-warp rate; so a crop of 31 frames is normalised as the whole clip would be.
 """
 
 from __future__ import annotations
@@ -42,7 +48,15 @@ from mocapnet.corpus import load_corpus
 from mocapnet.corrupt import additive_noise, corrupt_motion, gap_mask, long_gap_mask, seed_for, spatial_noise
 from mocapnet.fill import lerp_fill
 from mocapnet.motion import Motion, Skeleton
-from mocapnet.nn.features import ClipArrays, Normaliser, scored_index, scored_joint_of_channel, topology_hash
+from mocapnet.nn.base import clip_statistics
+from mocapnet.nn.features import (
+    MIN_SCALE_DEG,
+    ClipArrays,
+    Normaliser,
+    scored_index,
+    scored_joint_of_channel,
+    topology_hash,
+)
 from mocapnet.segments import skeleton_segment
 
 TRAIN_CORRUPTIONS = (
@@ -183,13 +197,37 @@ def spatial_residual(motion: Motion, level_cm: float, rng: np.random.Generator) 
     return ((diff + 180.0) % 360.0 - 180.0).astype(np.float32)
 
 
-def as_batch(filled: np.ndarray, mask: np.ndarray, clean: np.ndarray, angvel: np.ndarray) -> dict[str, torch.Tensor]:
-    """Arrays ``[B, T, ·]`` → the batch dict the modules take (float32 tensors, bool mask)."""
-    return {
+def as_batch(
+    filled: np.ndarray,
+    mask: np.ndarray,
+    clean: np.ndarray,
+    angvel: np.ndarray,
+    stats: dict[str, np.ndarray] | None = None,
+) -> dict[str, torch.Tensor]:
+    """Arrays ``[B, T, ·]`` → the batch dict the modules take (float32 tensors, bool mask); ``stats``: the
+    clips' statistics (``base.NORM_KEYS``, ``[B, 1, ·]``), else those of the whole given ``filled`` and
+    ``angvel`` (``base.clip_statistics``)."""
+    batch = {
         "filled": torch.as_tensor(filled, dtype=torch.float32),
         "mask": torch.as_tensor(mask, dtype=torch.bool),
         "clean": torch.as_tensor(clean, dtype=torch.float32),
         "angvel": torch.as_tensor(angvel, dtype=torch.float32),
+    }
+    if stats is None:
+        return batch | clip_statistics(batch["filled"], batch["angvel"])
+    return batch | {k: torch.as_tensor(v, dtype=torch.float32) for k, v in stats.items()}
+
+
+def crop_statistics(clip: Normaliser, clean: np.ndarray, noisy: np.ndarray, rate: float) -> dict[str, np.ndarray]:
+    """Statistics (``base.NORM_KEYS``, ``[1, ·]``) that a whole clip would show with a training crop's noise
+    (module docstring): ``clip`` the clean clip's own ``Normaliser``, ``clean`` / ``noisy`` the crop ``[L, C_s]``
+    (degrees), ``rate`` its time-warp rate."""
+    noise = (noisy - clean + 180.0) % 360.0 - 180.0
+    scale = np.maximum(np.sqrt(clip.scale**2 + noise.var(0)), MIN_SCALE_DEG)
+    return {
+        "center": (clip.center + noise.mean(0))[None],
+        "scale": scale[None],
+        "angvel_scale": (clip.angvel_scale * rate)[None],
     }
 
 
@@ -261,6 +299,7 @@ class MotionDataModule(L.LightningDataModule):
         self.joint_of_channel = scored_joint_of_channel(skeleton)
         self.segments = limb_joints(skeleton)
         self.train_clips = [ClipArrays.from_motion(m) for m in train]
+        self.clip_norms = [Normaliser.fit([c.scored], [c.angvel]) for c in self.train_clips]
         rng = np.random.default_rng([hp.seed, 7])
         for level in sorted({spatial_level(c) for c in hp.corruptions} - {None}):
             self.spatial[level] = [spatial_residual(m, level, rng) for m in train]
@@ -300,7 +339,9 @@ class MotionDataModule(L.LightningDataModule):
         spans = np.maximum(self.lengths - need + 1, 0).astype(np.float64)
         clips = rng.choice(len(self.train_clips), size=hp.batch_size, p=spans / spans.sum())
         offsets = np.arange(length) * rate
-        out = {k: [] for k in ("filled", "mask", "clean", "angvel")}
+        keys = ("filled", "mask", "clean", "angvel")
+        out: dict[str, list[np.ndarray]] = {k: [] for k in keys}
+        stats: list[dict[str, np.ndarray]] = []
         for i in clips:
             clip = self.train_clips[i]
             start = int(rng.integers(0, spans[i]))
@@ -315,7 +356,9 @@ class MotionDataModule(L.LightningDataModule):
             out["mask"].append(mask)
             out["clean"].append(clean)
             out["angvel"].append(resample(clip.angvel, positions) * rate)
-        return as_batch(*(np.stack(out[k]) for k in ("filled", "mask", "clean", "angvel")))
+            stats.append(crop_statistics(self.clip_norms[i], clean, out["filled"][-1], rate))
+        crop_stats = {k: np.stack([s[k] for s in stats]) for k in stats[0]}
+        return as_batch(*(np.stack(out[k]) for k in keys), crop_stats)
 
     def train_dataloader(self) -> DataLoader:
         return DataLoader(CropStream(self), batch_size=None, num_workers=0)

@@ -10,7 +10,11 @@ a filter head of ``head_layers`` tanh layers ends in the filter parameters:
   normalised Gaussian ``w(k) ∝ exp(-k²/2σ²)``, ``k = -half … half``;
 * ``filter_shape="free"``: ``2·half+1`` logits per channel, softmax over taps;
 * ``bias=True`` adds one bias per channel (non-zero-mean noise): ``x̂(t) = Σ_k w(k) x(t+k) − b(t)``, with
-  ``b`` bounded to ±3 channel scales.
+  ``b`` bounded to ±``bias_bound`` channel scales (``bias_bound·tanh(raw/bias_bound)``; default 3).
+
+``norm="corpus"`` (default) normalises the inputs with the training set's statistics; ``norm="clip"`` with
+each clip's own (``base.clip_statistics`` of the noisy input), and then the bias is in units of that clip's
+scale too, so the network sees the same relative noise on a clip of any corpus.
 
 Departures from the paper, all configurable: hidden size 64 per direction by default (the paper used about
 one unit per channel: 126 for 126 channels; bandai2 has 60 scored channels, CMU 90); PyTorch's default weight
@@ -25,7 +29,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from mocapnet.nn.base import CleanerModule
+from mocapnet.nn.base import NORMS, CleanerModule
 from mocapnet.nn.layers import (
     BLSTM,
     gaussian_filter,
@@ -61,6 +65,8 @@ class EBF(CleanerModule):
         weight_decay: float = 0.0,
         lr_patience: int = 4,
         lr_schedule: str = "plateau",
+        norm: str = "corpus",
+        bias_bound: float = 3.0,
         skeleton_hash: str = "",
         fps: float = 0.0,
         corpus: str = "",
@@ -68,6 +74,10 @@ class EBF(CleanerModule):
         super().__init__(n_channels, lr, weight_decay, lr_patience)
         if filter_shape not in ("gaussian", "free"):
             raise ValueError(f"filter_shape must be 'gaussian' or 'free', got {filter_shape!r}")
+        if norm not in NORMS:
+            raise ValueError(f"norm must be one of {NORMS}, got {norm!r}")
+        if not bias_bound > 0:
+            raise ValueError(f"bias_bound must be positive, got {bias_bound!r}")
         self.save_hyperparameters()
         n_in = n_channels + 3
         encoder = mlp(tapered(n_in, code, encoder_layers), last_activation=True) if encoder_layers else None
@@ -88,9 +98,13 @@ class EBF(CleanerModule):
             with torch.no_grad():
                 last.bias[self.n_filter :] = 0.0
 
-    def features(self, filled: torch.Tensor, angvel: torch.Tensor) -> torch.Tensor:
-        """``[B, T, C]`` degrees and ``[B, T, 3]`` rad/s → encoder input ``[B, T, C + 3]``."""
-        return torch.cat([self.normalise(filled), self.angvel_features(angvel)], dim=-1)
+    def features(
+        self, filled: torch.Tensor, angvel: torch.Tensor, stats: dict[str, torch.Tensor] | None = None
+    ) -> torch.Tensor:
+        """``[B, T, C]`` degrees and ``[B, T, 3]`` rad/s → encoder input ``[B, T, C + 3]``, normalised with
+        ``stats`` (from ``input_stats``; default ``input_stats(filled, angvel)``)."""
+        stats = self.input_stats(filled, angvel) if stats is None else stats
+        return torch.cat([self.normalise(filled, stats), self.angvel_features(angvel, stats)], dim=-1)
 
     def filter_weights(self, params: torch.Tensor) -> torch.Tensor:
         """Head output ``[B, T, P]`` → tap weights ``[B, C, T, K]`` (each row sums to 1)."""
@@ -105,9 +119,10 @@ class EBF(CleanerModule):
         """Gaussian σ ``[B, T, C]`` in frames (gaussian filter only)."""
         return params[..., : self.n_filter].clamp(-5.0, 5.0).exp()
 
-    def apply_params(self, filled: torch.Tensor, params: torch.Tensor) -> torch.Tensor:
+    def apply_params(self, filled: torch.Tensor, params: torch.Tensor, scale: torch.Tensor) -> torch.Tensor:
         """Filter ``filled [B, T, C]`` with the head output ``params [B, T, P]`` → ``[B, T, C]`` degrees, tap by
-        tap (``layers.softmax_filter``: the per-frame kernels ``[B, C, T, K]`` are never formed)."""
+        tap (``layers.softmax_filter``: the per-frame kernels ``[B, C, T, K]`` are never formed); ``scale``
+        (``[C]`` or ``[B, 1, C]`` degrees) is the unit of the bias (``debias``)."""
         half = self.hparams.half
         raw = params[..., : self.n_filter]
         if self.hparams.filter_shape == "gaussian":
@@ -116,27 +131,45 @@ class EBF(CleanerModule):
             k = 2 * half + 1
             top = raw.unflatten(-1, (-1, k)).amax(-1)  # [B, T, C]
             filtered = softmax_filter(filled, lambda tap: raw[..., tap + half :: k], half, top)
-        return self.debias(filtered, params)
+        return self.debias(filtered, params, scale)
 
-    def debias(self, filtered: torch.Tensor, params: torch.Tensor) -> torch.Tensor:
+    def debias(self, filtered: torch.Tensor, params: torch.Tensor, scale: torch.Tensor) -> torch.Tensor:
         """Subtract the predicted bias (``bias=True``; else identity): ``filtered [..., C]`` degrees, head output
-        ``params [..., P]``; the bias is ``3·tanh(raw/3)`` channel scales."""
+        ``params [..., P]``; the bias is ``bias_bound·tanh(raw/bias_bound)`` times ``scale`` (degrees)."""
         if not self.hparams.bias:
             return filtered
-        return filtered - self.scale * 3.0 * torch.tanh(params[..., self.n_filter :] / 3.0)
+        bound = float(self.hparams.get("bias_bound", 3.0))
+        return filtered - scale * bound * torch.tanh(params[..., self.n_filter :] / bound)
 
-    def filter_params(self, filled: torch.Tensor, angvel: torch.Tensor) -> torch.Tensor:
-        """Sequence mode: head output ``[B, T, P]`` for whole clips ``[B, T, C]``, ``[B, T, 3]``."""
-        return self.head(self.blstm(self.encoder(self.features(filled, angvel))))
+    def filter_params(
+        self, filled: torch.Tensor, angvel: torch.Tensor, stats: dict[str, torch.Tensor] | None = None
+    ) -> torch.Tensor:
+        """Sequence mode: head output ``[B, T, P]`` for whole clips ``[B, T, C]``, ``[B, T, 3]`` (``stats`` as in
+        ``features``)."""
+        return self.head(self.blstm(self.encoder(self.features(filled, angvel, stats))))
 
-    def forward(self, filled: torch.Tensor, angvel: torch.Tensor) -> torch.Tensor:
-        """Sequence mode: cleaned channels ``[B, T, C]`` (degrees) from noisy ``[B, T, C]`` and ``[B, T, 3]``."""
-        return self.apply_params(filled, self.filter_params(filled, angvel))
+    def forward(
+        self, filled: torch.Tensor, angvel: torch.Tensor, stats: dict[str, torch.Tensor] | None = None
+    ) -> torch.Tensor:
+        """Sequence mode: cleaned channels ``[B, T, C]`` (degrees) from noisy ``[B, T, C]`` and ``[B, T, 3]``;
+        ``stats`` (``NORM_KEYS``, ``[B, 1, ·]``) are the clips' statistics for ``norm="clip"`` (default:
+        computed over the given frames)."""
+        stats = self.input_stats(filled, angvel, stats)
+        return self.apply_params(filled, self.filter_params(filled, angvel, stats), stats["scale"])
 
     def predict_batch(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
-        return self(batch["filled"], batch["angvel"])
+        return self(batch["filled"], batch["angvel"], batch if "scale" in batch else None)
 
-    def windowed(self, filled: torch.Tensor, mask: torch.Tensor, angvel: torch.Tensor) -> torch.Tensor:
-        codes = self.encoder(self.features(filled, angvel))
+    def windowed(
+        self,
+        filled: torch.Tensor,
+        mask: torch.Tensor,
+        angvel: torch.Tensor,
+        stats: dict[str, torch.Tensor] | None = None,
+    ) -> torch.Tensor:
+        """Windowed mode (``CleanerModule.windowed``); ``norm="clip"`` statistics are those of the whole clip
+        (``stats`` ``[1, ·]`` when given)."""
+        stats = self.input_stats(filled, angvel, stats)
+        codes = self.encoder(self.features(filled, angvel, stats))
         params = self.head(self.blstm.windowed(codes, self.hparams.half))
-        return self.apply_params(filled[None], params[None])[0]
+        return self.apply_params(filled[None], params[None], stats["scale"])[0]

@@ -9,6 +9,7 @@ joint's own frame so it does not change when the whole motion turns about the ve
 from __future__ import annotations
 
 import hashlib
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -54,11 +55,13 @@ def context_rotations(skeleton: Skeleton, channels: np.ndarray) -> np.ndarray:
 
 
 def _axis_matrix(axis: str, angle_rad: float) -> np.ndarray:
-    c, s = np.cos(angle_rad), np.sin(angle_rad)
-    i, j = {"X": (1, 2), "Y": (2, 0), "Z": (0, 1)}[axis]
-    m = np.eye(3)
-    m[i, i], m[i, j], m[j, i], m[j, j] = c, -s, s, c
-    return m
+    """3×3 rotation by ``angle_rad`` about ``axis`` (``"X"``, ``"Y"`` or ``"Z"``)."""
+    c, s = math.cos(angle_rad), math.sin(angle_rad)
+    if axis == "X":
+        return np.array(((1.0, 0.0, 0.0), (0.0, c, -s), (0.0, s, c)))
+    if axis == "Y":
+        return np.array(((c, 0.0, s), (0.0, 1.0, 0.0), (-s, 0.0, c)))
+    return np.array(((c, -s, 0.0), (s, c, 0.0), (0.0, 0.0, 1.0)))
 
 
 def context_chain(skeleton: Skeleton) -> list[tuple[str, np.ndarray]]:
@@ -69,11 +72,12 @@ def context_chain(skeleton: Skeleton) -> list[tuple[str, np.ndarray]]:
 def context_matrix(chain: list[tuple[str, np.ndarray]], frame: np.ndarray) -> np.ndarray:
     """``context_rotations`` for one frame ``[C]`` as a 3×3 matrix (``chain`` from ``context_chain``), without
     scipy's per-call overhead: the streaming cleaner calls it once per frame."""
-    out = np.eye(3)
+    out = None
     for seq, cols in chain:
-        for axis, angle in zip(seq, np.deg2rad(frame[cols])):
-            out = out @ _axis_matrix(axis, angle)
-    return out
+        for axis, angle in zip(seq, frame[cols].tolist()):
+            m = _axis_matrix(axis, math.radians(angle))
+            out = m if out is None else out @ m
+    return np.eye(3) if out is None else out
 
 
 def matrix_rotvec(rel: np.ndarray) -> np.ndarray:
@@ -90,8 +94,15 @@ def matrix_rotvec(rel: np.ndarray) -> np.ndarray:
 
 
 def relative_rotvec(prev: np.ndarray, cur: np.ndarray) -> np.ndarray:
-    """Rotation vector ``[3]`` (rad) of ``prev⁻¹ cur`` for 3×3 rotation matrices."""
-    return matrix_rotvec((prev.T @ cur)[None])[0]
+    """Rotation vector ``[3]`` (rad) of ``prev⁻¹ cur`` for 3×3 rotation matrices: ``matrix_rotvec`` for one
+    matrix, in scalar arithmetic (the streaming cleaner calls it once per frame)."""
+    rel = prev.T @ cur
+    (a, b, c), (d, e, f), (g, h, i) = rel.tolist()
+    angle = math.acos(min(1.0, max(-1.0, (a + e + i - 1.0) / 2.0)))
+    if angle > math.radians(179.0):
+        return matrix_rotvec(rel[None])[0]
+    factor = 0.5 if angle < 1e-8 else 0.5 * angle / math.sin(angle)
+    return np.array(((h - f) * factor, (c - g) * factor, (d - b) * factor))
 
 
 def root_angular_velocity(skeleton: Skeleton, channels: np.ndarray, fps: float) -> np.ndarray:

@@ -18,18 +18,17 @@ from collections import deque
 from os import PathLike
 
 import numpy as np
-import scipy.linalg
 import torch
-from scipy.special import expit
 
 from mocapnet.fill import lerp_fill
 from mocapnet.io.atomic import MocapFileError
 from mocapnet.motion import Skeleton
-from mocapnet.nn.base import CleanerModule
+from mocapnet.nn.base import NORM_KEYS, CleanerModule, clip_statistics
 from mocapnet.nn.checkpoints import read_checkpoint
 from mocapnet.nn.ebd import EBD, GAP_BLEND, GapBlend, blend_gaps
 from mocapnet.nn.ebf import EBF
 from mocapnet.nn.features import (
+    MIN_SCALE_DEG,
     context_chain,
     context_matrix,
     relative_rotvec,
@@ -108,8 +107,9 @@ def chunk_starts(n_frames: int, chunk: int = CHUNK, overlap: int = OVERLAP) -> t
 
 
 def predict_sequence(model: CleanerModule, batch: dict[str, torch.Tensor]) -> torch.Tensor:
-    """Sequence-mode output ``[T, C]`` for one clip given as a batch of 1 (``[1, T, ·]`` tensors), in
-    overlapping chunks (``CHUNK``, ``OVERLAP``) when the clip is longer than one window."""
+    """Sequence-mode output ``[T, C]`` for one clip given as a batch of 1 (``[1, T, ·]`` tensors; the clip's
+    statistics ``NORM_KEYS`` ``[1, 1, ·]`` when present), in overlapping chunks (``CHUNK``, ``OVERLAP``) when the
+    clip is longer than one window; every chunk keeps the whole clip's statistics."""
     n = batch["filled"].shape[1]
     if n <= CHUNK + 2 * OVERLAP:
         return model.predict_batch(batch)[0]
@@ -120,7 +120,8 @@ def predict_sequence(model: CleanerModule, batch: dict[str, torch.Tensor]) -> to
     for g in range(0, len(starts), per_group):
         ws = torch.as_tensor(starts[g : g + per_group])
         rows = ws[:, None] + frames  # [G, W]
-        pred = model.predict_batch({k: v[0][rows] for k, v in batch.items()})  # [G, W, C]
+        chunks = {k: v.expand(len(rows), -1, -1) if k in NORM_KEYS else v[0][rows] for k, v in batch.items()}
+        pred = model.predict_batch(chunks)  # [G, W, C]
         for i, (w0, c0) in enumerate(zip(starts[g : g + per_group], cores[g : g + per_group])):
             c1 = min(int(c0) + CHUNK, n)
             out[c0:c1] = pred[i, c0 - w0 : c1 - w0]
@@ -152,7 +153,10 @@ def clean_channels(
     m = torch.as_tensor(mask[:, idx], dtype=torch.bool)
     w = torch.as_tensor(root_angular_velocity(skeleton, result, fps), dtype=torch.float32)
     if mode == "sequence":
-        out = predict_sequence(model, {"filled": x[None], "mask": m[None], "angvel": w[None]})
+        batch = {"filled": x[None], "mask": m[None], "angvel": w[None]}
+        if model.hparams.get("norm", "corpus") == "clip":
+            batch |= clip_statistics(x[None], w[None])
+        out = predict_sequence(model, batch)
     else:
         out = model.windowed(x, m, w)
     del x, w
@@ -172,105 +176,194 @@ class _CentreKernel:
     cleaner's steady state: one call per frame, so per-call overhead is what counts).
 
     Savings over running ``nn.LSTM`` on the window: layer 1's input projection is computed once per frame
-    (``project``) and kept; both directions of a layer step together (one batched product per step); layer 2
-    runs only the steps its centre output depends on (``half + 1`` each way instead of ``2·half + 1``); the
-    encoder, head and filter touch one frame. Same arithmetic as the torch modules (float32 rounding apart).
+    (``project``) and kept; both directions of a layer step together (one batched product per step, into
+    preallocated buffers whose gate views are made once); the gate rows are reordered to (input, forget,
+    output, cell) and those of the three sigmoid gates halved, so one tanh covers all four
+    (``σ(x) = (1 + tanh(x/2)) / 2``); layer 2 runs only the steps its centre output depends on (``half + 1``
+    each way instead of ``2·half + 1``); the encoder, head and filter touch one frame. Same arithmetic as the
+    torch modules (float32 rounding apart).
     """
 
     def __init__(self, model: EBF) -> None:
         lstm = model.blstm.lstm
+        hid = lstm.hidden_size
+        order = np.concatenate([np.arange(0, 2 * hid), np.arange(3 * hid, 4 * hid), np.arange(2 * hid, 3 * hid)])
+        half_sig = np.where(np.arange(4 * hid) < 3 * hid, 0.5, 1.0).astype(np.float32)
 
         def both(name: str, layer: int) -> np.ndarray:
             fwd, bwd = getattr(lstm, f"{name}_l{layer}"), getattr(lstm, f"{name}_l{layer}_reverse")
-            return np.stack([fwd.detach().numpy(), bwd.detach().numpy()]).astype(np.float32)
+            w = np.stack([fwd.detach().numpy(), bwd.detach().numpy()]).astype(np.float32)[:, order]
+            return w * (half_sig[:, None] if w.ndim == 3 else half_sig)
 
-        self.wih = [both("weight_ih", layer) for layer in (0, 1)]  # [2, 4H, in]
-        self.whh = [both("weight_hh", layer) for layer in (0, 1)]  # [2, 4H, H]
+        self.wih = [both("weight_ih", layer) for layer in (0, 1)]  # [2, 4H, in], gates (i, f, o, g)
+        self.whh_t = [np.ascontiguousarray(both("weight_hh", layer).transpose(0, 2, 1)) for layer in (0, 1)]
         self.bias = [both("bias_ih", layer) + both("bias_hh", layer) for layer in (0, 1)]  # [2, 4H]
-        self.hidden = lstm.hidden_size
-        self.whh_block = [scipy.linalg.block_diag(*w) for w in self.whh]  # [8H, 2H]: both directions at once
+        self.wih1_t = [np.ascontiguousarray(self.wih[1][d].T) for d in (0, 1)]  # [2H, 4H] per direction
+        self.wih0_t = np.ascontiguousarray(self.wih[0].transpose(2, 0, 1).reshape(self.wih[0].shape[2], -1))
+        self.bias0 = self.bias[0].reshape(-1)  # [8H]: both directions, as the columns of wih0_t
+        self.hidden = hid
         self.encoder = _dense_layers(model.encoder)
         self.head = _dense_layers(model.head)
         hp = model.hparams
         self.half, self.n_channels, self.n_filter = hp.half, hp.n_channels, model.n_filter
         self.free, self.has_bias = hp.filter_shape == "free", bool(hp.bias)
-        self.center = model.center.numpy().astype(np.float32)
-        self.scale = model.scale.numpy().astype(np.float32)
-        self.angvel_scale = model.angvel_scale.numpy().astype(np.float32)
+        self.bias_bound = float(hp.get("bias_bound", 3.0))
+        self.set_stats(model.center.numpy(), model.scale.numpy(), model.angvel_scale.numpy())
         self.taps_sq = (np.arange(-self.half, self.half + 1, dtype=np.float32) ** 2)[None, :]
+        width = 2 * self.half + 1
+        # step buffers: h, c [2, 1, H]; gates [2, 1, 4H] and views of them; layer-1 outputs [W, 2, 1, H]
+        self._h = np.zeros((2, 1, hid), dtype=np.float32)
+        self._c = np.zeros((2, 1, hid), dtype=np.float32)
+        self._tmp = np.zeros((2, 1, hid), dtype=np.float32)
+        self._gates = np.zeros((2, 1, 4 * hid), dtype=np.float32)
+        g = self._gates
+        self._sig, self._cell = g[..., : 3 * hid], g[..., 3 * hid :]
+        self._i, self._f, self._o = g[..., :hid], g[..., hid : 2 * hid], g[..., 2 * hid : 3 * hid]
+        self._layer1 = np.zeros((width, 2, 1, hid), dtype=np.float32)
+        self._seq = np.zeros((width, 2, 1, 4 * hid), dtype=np.float32)
 
     @staticmethod
     def usable(model: EBF) -> bool:
         """Whether ``model``'s LSTM has the two layers this kernel computes."""
         return model.blstm.lstm.num_layers == 2 and model.blstm.stride == 1
 
+    def set_stats(self, center: np.ndarray, scale: np.ndarray, angvel_scale: np.ndarray) -> None:
+        """The input statistics (``[C]``, ``[C]`` degrees, ``[3]`` rad/s) the next projections use."""
+        self.center = np.asarray(center, dtype=np.float32)
+        self.scale = np.asarray(scale, dtype=np.float32)
+        self.angvel_scale = np.asarray(angvel_scale, dtype=np.float32)
+
     def project(self, scored: np.ndarray, angvel: np.ndarray) -> np.ndarray:
-        """One frame's layer-1 LSTM input projection ``[2, 4H]`` (both directions, biases included) from its
-        scored channels ``[C]`` (degrees) and root angular velocity ``[3]`` (rad/s)."""
+        """Layer-1 LSTM input projections ``[N, 2, 1, 4H]`` (both directions, biases included) of frames with
+        scored channels ``[N, C]`` (degrees) and root angular velocity ``[N, 3]`` (rad/s)."""
         x = np.clip((np.remainder(scored - self.center + 180.0, 360.0) - 180.0) / self.scale, -8.0, 8.0)
         w = np.clip(angvel / self.angvel_scale, -8.0, 8.0)
-        code = _run_dense(self.encoder, np.concatenate([x, w]).astype(np.float32))
-        return self.wih[0] @ code + self.bias[0]
+        code = _run_dense(self.encoder, np.concatenate([x, w], axis=1).astype(np.float32))  # [N, F]
+        out = code @ self.wih0_t
+        out += self.bias0
+        return out.reshape(len(out), 2, 1, -1)
 
-    def _steps(self, proj: np.ndarray, layer: int, out: np.ndarray | None) -> np.ndarray:
-        """Run both directions of ``layer`` over ``proj [S, 2, 4H]`` (row s: forward step s, backward step s);
-        writes the hidden states into ``out [S, 2, H]`` when given; returns the last ``[2, H]``.
-
-        One block-diagonal product per step gives both directions' recurrent terms."""
-        hid, whh = self.hidden, self.whh_block[layer]
-        h = np.zeros(2 * hid, dtype=np.float32)
-        c = np.zeros((2, hid), dtype=np.float32)
+    def _steps(self, proj: np.ndarray, out: np.ndarray | None, layer: int) -> np.ndarray:
+        """Run both directions of ``layer`` over ``proj [S, 2, 1, 4H]`` (row s: forward step s, backward step
+        s); writes the hidden states into ``out [S, 2, 1, H]`` when given; returns the last ``[2, 1, H]``."""
+        c, tmp, gates, sig, cell = self._c, self._tmp, self._gates, self._sig, self._cell
+        i, f, o, whh_t = self._i, self._f, self._o, self.whh_t[layer]
+        h = self._h
+        h.fill(0.0)
+        c.fill(0.0)
         for s in range(proj.shape[0]):
-            gates = (whh @ h).reshape(2, 4 * hid)
+            np.matmul(h, whh_t, out=gates)
             gates += proj[s]
-            act = expit(gates)
-            c = act[:, hid : 2 * hid] * c + act[:, :hid] * np.tanh(gates[:, 2 * hid : 3 * hid])
-            h = (act[:, 3 * hid :] * np.tanh(c)).reshape(-1)
-            if out is not None:
-                out[s] = h.reshape(2, hid)
-        return h.reshape(2, hid)
+            np.tanh(gates, out=gates)  # sigmoid gates: tanh of half their input (weights halved)
+            sig *= 0.5
+            sig += 0.5
+            c *= f
+            np.multiply(i, cell, out=tmp)
+            c += tmp
+            np.tanh(c, out=tmp)
+            h = self._h if out is None else out[s]
+            np.multiply(o, tmp, out=h)
+        return h
 
     def centre(self, proj: np.ndarray, window: np.ndarray) -> np.ndarray:
         """Cleaned scored channels ``[C]`` of the centre frame, from the window's layer-1 projections
-        ``[W, 2, 4H]`` (``W = 2·half + 1``) and its scored channels ``[W, C]`` (degrees)."""
-        width, mid = proj.shape[0], self.half
-        seq = np.stack([proj[:, 0], proj[::-1, 1]], axis=1)  # step s: forward frame s, backward frame W-1-s
-        hidden = np.empty((width, 2, self.hidden), dtype=np.float32)
-        self._steps(seq, 0, hidden)
-        layer1 = np.concatenate([hidden[:, 0], hidden[::-1, 1]], axis=1)  # [W, 2H] per frame
-        fwd = layer1[: mid + 1] @ self.wih[1][0].T + self.bias[1][0]
-        bwd = layer1[mid:][::-1] @ self.wih[1][1].T + self.bias[1][1]
-        h = self._steps(np.stack([fwd, bwd], axis=1), 1, None)
-        params = _run_dense(self.head, h.reshape(-1))
+        ``[W, 2, 1, 4H]`` (``W = 2·half + 1``) and its scored channels ``[W, C]`` (degrees)."""
+        mid, seq, layer1 = self.half, self._seq, self._layer1
+        seq[:, 0] = proj[:, 0]  # step s: forward frame s, backward frame W-1-s
+        seq[:, 1] = proj[::-1, 1]
+        self._steps(seq, layer1, 0)
+        per_frame = np.concatenate([layer1[:, 0, 0], layer1[::-1, 1, 0]], axis=1)  # [W, 2H]
+        step2 = np.empty((mid + 1, 2, 1, 4 * self.hidden), dtype=np.float32)
+        np.matmul(per_frame[: mid + 1], self.wih1_t[0], out=step2[:, 0, 0])
+        np.matmul(per_frame[mid:][::-1], self.wih1_t[1], out=step2[:, 1, 0])
+        step2 += self.bias[1][:, None, :]
+        h = self._steps(step2, None, 1)
+        params = _run_dense(self.head, h.reshape(1, -1))[0]
         raw = params[: self.n_filter]
         if self.free:
             logits = raw.reshape(self.n_channels, -1)
         else:
             logits = -0.5 * self.taps_sq * np.exp(-2.0 * np.clip(raw, -5.0, 5.0))[:, None]
         weights = np.exp(logits - logits.max(axis=1, keepdims=True))  # [C, K]
-        values = (weights * window.T).sum(axis=1) / weights.sum(axis=1)
+        values = np.einsum("ck,kc->c", weights, window) / weights.sum(axis=1)
         if self.has_bias:
-            values = values - self.scale * 3.0 * np.tanh(params[self.n_filter :] / 3.0)
+            bound = self.bias_bound
+            values = values - self.scale * bound * np.tanh(params[self.n_filter :] / bound)
         return values
 
 
 def _dense_layers(seq: torch.nn.Module) -> list[tuple[np.ndarray, np.ndarray, bool]]:
-    """``(weight, bias, tanh after)`` of each Linear of a ``layers.mlp`` (an Identity gives none)."""
+    """``(weightᵀ, bias, tanh after)`` of each Linear of a ``layers.mlp`` (an Identity gives none)."""
     mods = list(seq) if isinstance(seq, torch.nn.Sequential) else []
     out = []
     for i, mod in enumerate(mods):
         if isinstance(mod, torch.nn.Linear):
             tanh = i + 1 < len(mods) and isinstance(mods[i + 1], torch.nn.Tanh)
-            out.append((mod.weight.detach().numpy().astype(np.float32), mod.bias.detach().numpy(), tanh))
+            weight_t = np.ascontiguousarray(mod.weight.detach().numpy().astype(np.float32).T)
+            out.append((weight_t, mod.bias.detach().numpy().astype(np.float32), tanh))
     return out
 
 
 def _run_dense(layers: list[tuple[np.ndarray, np.ndarray, bool]], x: np.ndarray) -> np.ndarray:
-    for weight, bias, tanh in layers:
-        x = weight @ x + bias
+    """Rows ``x [N, F]`` through the dense layers of ``_dense_layers``."""
+    for weight_t, bias, tanh in layers:
+        x = x @ weight_t
+        x += bias
         if tanh:
-            x = np.tanh(x)
+            np.tanh(x, out=x)
     return x
+
+
+#: Streaming with ``norm="clip"`` and no statistics given: the running statistics are taken (and the
+#: window's layer-1 inputs recomputed) when the stream has seen ``W·2^k`` frames, then every ``STATS_EVERY``.
+STATS_EVERY = 1024
+
+
+class RunningStats:
+    """``base.clip_statistics`` of the frames a stream has seen so far, kept as running sums: circular mean per
+    channel (sums of sin and cos), std of the values wrapped into ±180° of the first frame's (sums and sums of
+    squares), RMS of the root angular velocity."""
+
+    def __init__(self, n_channels: int) -> None:
+        self.n = 0
+        self.sin, self.cos = np.zeros(n_channels), np.zeros(n_channels)
+        self.sum, self.sumsq = np.zeros(n_channels), np.zeros(n_channels)
+        self.ref: np.ndarray | None = None
+        self.n_angvel, self.angvel_sq = 0, np.zeros(3)
+
+    def add(self, scored: np.ndarray) -> None:
+        """One frame's scored channels ``[C]`` (degrees)."""
+        if self.ref is None:
+            self.ref = scored.astype(np.float64)
+        rad = np.deg2rad(scored)
+        self.sin += np.sin(rad)
+        self.cos += np.cos(rad)
+        x = self.ref - ((self.ref - scored + 180.0) % 360.0 - 180.0)
+        self.sum += x
+        self.sumsq += x * x
+        self.n += 1
+
+    def add_angvel(self, angvel: np.ndarray) -> None:
+        """One frame's root angular velocity ``[3]`` (rad/s)."""
+        self.angvel_sq += np.square(angvel, dtype=np.float64)
+        self.n_angvel += 1
+
+    def stats(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(center [C], scale [C], angvel_scale [3])`` as ``clip_statistics`` defines them."""
+        center = np.rad2deg(np.arctan2(self.sin, self.cos))
+        mean = self.sum / max(self.n, 1)
+        var = np.maximum(self.sumsq / max(self.n, 1) - mean * mean, 0.0)
+        scale = np.maximum(np.sqrt(var), MIN_SCALE_DEG)
+        angvel_scale = np.maximum(np.sqrt(self.angvel_sq / max(self.n_angvel, 1)), 1e-3)
+        return center, scale, angvel_scale
+
+
+def _stats_due(count: int, width: int) -> bool:
+    """Whether a running-statistics stream refreshes at frame count ``count`` (``STATS_EVERY``)."""
+    if count % STATS_EVERY == 0:
+        return True
+    ratio = count // width
+    return count < STATS_EVERY and count % width == 0 and ratio & (ratio - 1) == 0
 
 
 class EBFStream:
@@ -279,12 +372,23 @@ class EBFStream:
     ``push(frame)`` takes one frame of channels ``[C]`` (degrees, no gaps) and returns the frames that became
     final, as a list of ``(frame index, cleaned channels [C])``: from frame ``2·half`` on, one per call
     (frame ``t - half``; the first call that completes a window returns frames 0 … half). ``flush()`` returns
-    the last ``half`` frames at the end of the stream. The results equal ``clean_channels(...,
-    mode="windowed")`` on the whole clip. The steady state (one frame per call) runs ``_CentreKernel``; the
-    first window and the flush run the torch modules.
+    the last ``half`` frames at the end of the stream. The steady state (one frame per call) runs
+    ``_CentreKernel``; the first window and the flush run the torch modules.
+
+    A ``norm="corpus"`` network gives exactly ``clean_channels(..., mode="windowed")`` on the whole clip. A
+    ``norm="clip"`` network needs the clip's statistics: ``stats`` (``(center [C_s], scale [C_s],
+    angvel_scale [3])``, e.g. ``clip_statistics`` of a calibration take) fixes them, and then the stream equals
+    windowed mode given the same statistics; without them the stream uses those of what it has seen so far
+    (``RunningStats``, refreshed on ``_stats_due`` frames; the flush refreshes them with every frame).
     """
 
-    def __init__(self, model: EBF, skeleton: Skeleton, fps: float) -> None:
+    def __init__(
+        self,
+        model: EBF,
+        skeleton: Skeleton,
+        fps: float,
+        stats: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+    ) -> None:
         if not isinstance(model, EBF):
             raise TypeError("EBFStream streams EBF (and BF) models")
         check_skeleton(model, skeleton, fps=fps)
@@ -295,24 +399,58 @@ class EBFStream:
         self.frames: deque[np.ndarray] = deque(maxlen=self.width)
         self.scored: deque[np.ndarray] = deque(maxlen=self.width)  # [C_s] float32
         self.angvel: deque[np.ndarray] = deque(maxlen=self.width)  # [3] rad/s
-        self.proj: deque[np.ndarray] = deque(maxlen=self.width)  # [2, 4H] (kernel only)
         self.count = 0
+        # the kernel's inputs, frame k in slots k % W and k % W + W, so the last W frames are one slice
+        self._ring_scored = np.zeros((2 * self.width, len(self.idx)), dtype=np.float32)
+        self._ring_proj: np.ndarray | None = None  # [2W, 2, 1, 4H] layer-1 projections
         self._prev_rot: np.ndarray | None = None
         self._chain = context_chain(skeleton)
         self._kernel = _CentreKernel(model) if _CentreKernel.usable(model) else None
+        if self._kernel is not None:
+            self._ring_proj = np.zeros((2 * self.width, 2, 1, 4 * self._kernel.hidden), dtype=np.float32)
+        clip_norm = model.hparams.get("norm", "corpus") == "clip"
+        self.running = RunningStats(len(self.idx)) if clip_norm and stats is None else None
+        fixed = (model.center.numpy(), model.scale.numpy(), model.angvel_scale.numpy())
+        self._set_stats(stats if clip_norm and stats is not None else fixed)
+
+    def _set_stats(self, stats: tuple[np.ndarray, np.ndarray, np.ndarray]) -> None:
+        """Use ``(center, scale, angvel_scale)`` from now on (torch modules and kernel)."""
+        self._stats = dict(zip(NORM_KEYS, (torch.as_tensor(s, dtype=torch.float32) for s in stats)))
+        if self._kernel is not None:
+            self._kernel.set_stats(*stats)
+
+    def _refresh(self) -> None:
+        """Take the running statistics and recompute the window's layer-1 projections with them."""
+        self._set_stats(self.running.stats())
+        if self._kernel is not None and len(self.angvel) == len(self.scored):
+            proj = self._kernel.project(np.stack(self.scored), np.stack(self.angvel))
+            for k, row in zip(range(self.count - len(proj), self.count), proj):
+                self._store(self._ring_proj, k, row)
+
+    def _store(self, ring: np.ndarray, frame: int, row: np.ndarray) -> None:
+        """Write ``row`` as frame ``frame`` of a ring buffer ``[2W, ...]`` (slots ``frame % W`` and ``+ W``)."""
+        slot = frame % self.width
+        ring[slot] = row
+        ring[slot + self.width] = row
 
     def _add_angvel(self, angvel: np.ndarray) -> None:
-        """Record the angular velocity of the newest frame (and its layer-1 projection for the kernel)."""
+        """Record the angular velocity of the oldest frame without one (and its layer-1 projection for the
+        kernel)."""
+        frame = self.count - len(self.scored) + len(self.angvel) if len(self.angvel) < len(self.scored) else None
         self.angvel.append(angvel)
+        if self.running is not None:
+            self.running.add_angvel(angvel)
         if self._kernel is not None:
-            self.proj.append(self._kernel.project(self.scored[len(self.angvel) - 1], angvel))
+            frame = self.count - 1 if frame is None else frame
+            scored = self._ring_scored[frame % self.width]
+            self._store(self._ring_proj, frame, self._kernel.project(scored[None], angvel[None])[0])
 
     @torch.inference_mode()
     def _window(self) -> tuple[torch.Tensor, torch.Tensor]:
         """LSTM outputs ``[W, 2H]`` and scored channels ``[W, C]`` of the current window (torch modules)."""
         window = torch.as_tensor(np.stack(self.scored))
         angvel = torch.as_tensor(np.stack(self.angvel), dtype=torch.float32)
-        codes = self.model.encoder(self.model.features(window[None], angvel[None]))
+        codes = self.model.encoder(self.model.features(window[None], angvel[None], self._stats))
         return self.model.blstm.lstm(codes)[0][0], window
 
     def _frame_out(self, position: int, values: np.ndarray) -> tuple[int, np.ndarray]:
@@ -330,7 +468,8 @@ class EBFStream:
         weights = model.filter_weights(params[None])[0]  # [C, n, K]
         pos = torch.as_tensor(positions)
         taps = (pos[:, None] + torch.arange(-h, h + 1)).clamp(0, len(window) - 1)  # [n, K]
-        values = model.debias((window[taps].permute(2, 0, 1) * weights).sum(-1).T, params)  # [n, C]
+        filtered = (window[taps].permute(2, 0, 1) * weights).sum(-1).T  # [n, C]
+        values = model.debias(filtered, params, self._stats["scale"])
         return [self._frame_out(p, v) for p, v in zip(positions, values.double().numpy())]
 
     def push(self, frame: np.ndarray) -> list[tuple[int, np.ndarray]]:
@@ -339,6 +478,9 @@ class EBFStream:
         rot = context_matrix(self._chain, frame)
         self.frames.append(frame)
         self.scored.append(frame[self.idx].astype(np.float32))
+        self._store(self._ring_scored, self.count, self.scored[-1])
+        if self.running is not None:
+            self.running.add(frame[self.idx])
         self.count += 1
         if self._prev_rot is None:
             self._prev_rot = rot
@@ -348,13 +490,17 @@ class EBFStream:
         if self.count == 2:
             self._add_angvel(angvel)
         self._add_angvel(angvel)
+        if self.running is not None and _stats_due(self.count, self.width):
+            self._refresh()
         if self.count < self.width:
             return []
         if self.count == self.width:
             return self._emit(list(range(self.half + 1)))
         if self._kernel is None:
             return self._emit([self.half])
-        values = self._kernel.centre(np.stack(self.proj), np.stack(self.scored))
+        start = self.count % self.width  # slot of frame count - W, the window's first
+        end = start + self.width
+        values = self._kernel.centre(self._ring_proj[start:end], self._ring_scored[start:end])
         return [self._frame_out(self.half, values.astype(np.float64))]
 
     def flush(self) -> list[tuple[int, np.ndarray]]:
@@ -363,6 +509,10 @@ class EBFStream:
             return []
         if self.count == 1:
             self.angvel.append(np.zeros(3, dtype=np.float32))
+            if self.running is not None:
+                self.running.add_angvel(self.angvel[0])
+        if self.running is not None:
+            self._refresh()
         if self.count < self.width:
             return self._emit(list(range(self.count)))
         return self._emit(list(range(self.half + 1, self.width)))

@@ -1,0 +1,291 @@
+"""Benchmark of the learned cleaners (EBF variants, EBD) against the baselines, across corpora, and their
+speed; ``scripts/bench_neural.py`` is its command line.
+
+Quality: each corruption on a split of a corpus (``split="test"``: fold-0 test clips, the models trained on
+folds 2-4 and were selected on fold 1; ``split="val"``: the fold-1 clips, for choosing between checkpoints;
+bandai1 is test only). Scoring is ``harness.evaluate_angles`` and each row ``report.summarize``: mean over
+(clip, repeat) of per-clip RMS errors and the ratio to the best reference baseline of ``harness.reference``
+(the best of gaussian-58ms, gaussian-125ms and gaussian-tuned for noise; the better of lerp and spline for
+gaps; lerp+gaussian-58ms for noise+gaps). EBD is also scored per gap-length bin against lerp and spline.
+
+Speed (1 torch/BLAS thread): offline cleaning of a 10,000-frame clip, peak memory of a 300,000-frame clean
+(``clean_channels``, in a child process: ``python -m mocapnet.nn.bench METHOD``), and the CPU time of
+``EBFStream.push`` per frame.
+"""
+
+from __future__ import annotations
+
+import json
+import resource
+import subprocess
+import sys
+import time
+from collections.abc import Sequence
+
+import numpy as np
+
+import mocapnet.methods.neural  # noqa: F401  (registers the EBF variant names)
+from mocapnet.corpus import load_corpus
+from mocapnet.corrupt import ANGLE_CORRUPTIONS, corrupt_motion, seed_for
+from mocapnet.evaluate.harness import Evaluation, corpus_references, evaluate_angles, has_gaps
+from mocapnet.evaluate.metrics import wrapped_diff
+from mocapnet.evaluate.report import fmt, markdown_table, summarize
+from mocapnet.fill import runs
+from mocapnet.methods.registry import build_method
+from mocapnet.motion import Motion
+from mocapnet.threads import pin_threads
+
+CORRUPTIONS = [c for c in ANGLE_CORRUPTIONS if c != "none"] + ["segment-gap:left-arm:0.5", "segment-gap:left-arm:2"]
+#: The corruptions and rule that choose the shipped ``ebf`` among candidates (fold 1 only): mean ratio.
+SELECTION = ("angular-0.1", "angular-0.5", "angular-0.9", "spatial-0.5cm", "uniform-0.5", "bias-sine")
+GAP_BINS = ((1, 5), (6, 15), (16, 30), (31, 60), (61, 10**9))  # frames, inclusive
+BIN_LABELS = ("≤ 5", "6–15", "16–30", "31–60", "> 60")
+BIN_CORRUPTIONS = ("gaps", "gaps-long", "segment-gap:left-arm:0.5", "segment-gap:left-arm:2")
+SPLITS = ("test", "val")
+
+
+def shipped_variants(motion: Motion) -> list[str]:
+    """The EBF-family methods shipped for ``motion``'s skeleton: ``ebf`` and each variant by name."""
+    from mocapnet.nn.checkpoints import EBF_VARIANTS, read_index
+    from mocapnet.nn.features import topology_hash
+
+    mine = topology_hash(motion.skeleton)
+    names = [e["method"] for e in read_index() if e["skeleton_hash"] == mine]
+    return ["ebf"] + [n for n in (*EBF_VARIANTS, "bf", "nn") if n in names]
+
+
+def neural_methods(corruption: str, motion: Motion, extra: Sequence[str], shipped: bool = True) -> list[str]:
+    """What to score beside the references: EBF variants (``shipped``) and ``extra`` on noise, EBD on gaps,
+    EBD+EBF on noise+gaps."""
+    if corruption == "noise+gaps":
+        return ["ebd+ebf"]
+    if has_gaps(corruption):
+        return ["ebd"]
+    return (shipped_variants(motion) if shipped else []) + list(extra)
+
+
+def subset(clips: list[Motion], n: int | None) -> list[Motion]:
+    """``n`` clips evenly spaced over ``clips`` (the fold's order is stratified by content), or all."""
+    return clips if not n or n >= len(clips) else clips[:: len(clips) // n][:n]
+
+
+def split_clips(name: str, split: str, n_clips: int | None):
+    """``(corpus, scored clips, training clips)``: fold-0 test clips (``"test"``) or the fold-1 validation
+    clips (``"val"``, bandai2-style corpora only), ``n_clips`` of them (``subset``)."""
+    if split not in SPLITS:
+        raise ValueError(f"split must be one of {SPLITS}, got {split!r}")
+    corpus = load_corpus(name, progress=False)
+    train, val, test = corpus.split(0)
+    return corpus, subset(test if split == "test" else val, n_clips), train
+
+
+def quality(
+    name: str,
+    n_clips: int | None,
+    repeats: int,
+    extra: Sequence[str],
+    corruptions: Sequence[str],
+    split: str = "test",
+    shipped: bool = True,
+) -> list[dict]:
+    """``report.summarize`` rows (plus corpus, corruption, clips, repeats, split) of the references and the
+    learned methods on each corruption."""
+    corpus, clips, train = split_clips(name, split, n_clips)
+    out = []
+    for corruption in corruptions:
+        start = time.perf_counter()
+        methods = corpus_references(name, corruption) + neural_methods(corruption, clips[0], extra, shipped)
+        rows, skipped = evaluate_angles(corpus, clips, train, corruption, methods, repeats, progress=False)
+        ev = Evaluation(name, corruption, "angles", methods, rows, skipped, 0, repeats)
+        n_scored = len({r["file"] for r in rows})
+        meta = {"corpus": name, "corruption": corruption, "clips": n_scored, "repeats": repeats, "split": split}
+        out += [{**entry, **meta} for entry in summarize(ev)]
+        print(f"{name} {split} {corruption}: {n_scored} clips x {repeats} in {time.perf_counter() - start:.0f} s")
+    return out
+
+
+def selection_scores(rows: Sequence[dict], corruptions: Sequence[str] = SELECTION) -> dict[str, float]:
+    """Mean over ``corruptions`` of each method's ratio to the best Gaussian (``quality`` rows); only
+    methods scored on every one of them."""
+    ratios: dict[str, dict[str, float]] = {}
+    for r in rows:
+        if r["corruption"] in corruptions:
+            ratios.setdefault(r["method"], {})[r["corruption"]] = r["ratio"]
+    return {m: float(np.mean(list(v.values()))) for m, v in ratios.items() if len(v) == len(corruptions)}
+
+
+def gap_bins(name: str, n_clips: int | None, repeats: int) -> list[dict]:
+    """RMS gap error (degrees) per gap-length bin of EBD, lerp and spline on fold-0 test clips; a gap is one
+    run of missing frames of one scored joint, its error taken over that joint's scored channels."""
+    _, clips, _ = split_clips(name, "test", n_clips)
+    methods = {m: build_method(m).clean for m in ("lerp", "spline", "ebd")}
+    out = []
+    for corruption in BIN_CORRUPTIONS:
+        sse = np.zeros((len(methods), len(GAP_BINS)))
+        count = np.zeros(len(GAP_BINS))
+        gaps = np.zeros(len(GAP_BINS), dtype=int)
+        for motion in clips:
+            sk = motion.skeleton
+            scored = np.flatnonzero(sk.scored_mask)
+            cols_of = [c for c in (np.intersect1d(sk.joint_channels(j), scored) for j in sk.scored_joints) if c.size]
+            for rep in range(repeats):
+                rng = np.random.default_rng(seed_for(name, motion.name, rep, corruption))
+                try:
+                    noisy, mask = corrupt_motion(motion, corruption, rng)
+                except ValueError:
+                    break
+                outs = [clean(motion.with_channels(noisy), mask) for clean in methods.values()]
+                for cols in cols_of:
+                    for a, b in runs(mask[:, cols[0]]):
+                        k = next(i for i, (lo, hi) in enumerate(GAP_BINS) if lo <= b - a <= hi)
+                        gaps[k] += 1
+                        count[k] += (b - a) * len(cols)
+                        for m, o in enumerate(outs):
+                            sse[m, k] += float((wrapped_diff(o[a:b, cols], motion.channels[a:b, cols]) ** 2).sum())
+        for m, method in enumerate(methods):
+            for k in range(len(GAP_BINS)):
+                rms = float(np.sqrt(sse[m, k] / count[k])) if count[k] else float("nan")
+                row = {"corpus": name, "corruption": corruption, "method": method, "bin": BIN_LABELS[k]}
+                out.append({**row, "gaps": int(gaps[k]), "rms_deg": rms})
+        print(f"bins {name} {corruption}: {len(clips)} clips x {repeats}", flush=True)
+    return out
+
+
+def long_clip(n_frames: int) -> Motion:
+    """``n_frames`` of bandai2 fold-0 test clips, each played forth and back (timing and memory only)."""
+    test = load_corpus("bandai2", progress=False).split(0)[2][:40]
+    ch = np.concatenate([np.concatenate([m.channels, m.channels[::-1]]) for m in test])
+    return test[0].with_channels(np.tile(ch, (int(np.ceil(n_frames / len(ch))), 1))[:n_frames])
+
+
+def speed(methods: Sequence[str], repeats: int, stream_frames: int = 3000) -> dict:
+    """Offline frames/s (median of ``repeats``), streaming push times and 300k-frame peak RSS per method."""
+    clip = long_clip(10_000)
+    noisy, mask = corrupt_motion(clip, "angular-0.5", np.random.default_rng(0))
+    offline = {}
+    for text in ["gaussian-58ms", *methods]:
+        clean = build_method(text).clean
+        clean(clip.with_channels(noisy), mask)  # warm-up: loads the checkpoint
+        times = []
+        for _ in range(repeats):
+            start = time.perf_counter()
+            clean(clip.with_channels(noisy), mask)
+            times.append(time.perf_counter() - start)
+        offline[text] = {"seconds": float(np.median(times)), "frames_per_s": clip.n_frames / float(np.median(times))}
+    return {
+        "offline_frames": clip.n_frames,
+        "offline": offline,
+        "streaming": streaming(clip, [m for m in methods if m.startswith("ebf")], stream_frames),
+        "rss_300k": {m: rss_child(m) for m in methods},
+    }
+
+
+def push_times(stream, frames: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """CPU and wall milliseconds of each ``stream.push`` over ``frames [N, C]`` after the first window."""
+    cpu, wall = [], []
+    for frame in frames:
+        c0, w0 = time.thread_time(), time.perf_counter()
+        stream.push(frame)
+        cpu.append(time.thread_time() - c0)
+        wall.append(time.perf_counter() - w0)
+    skip = 2 * stream.half + 2
+    return np.array(cpu[skip:]) * 1e3, np.array(wall[skip:]) * 1e3
+
+
+def streaming(clip: Motion, methods: Sequence[str], n_frames: int) -> dict:
+    """``EBFStream.push`` CPU and wall time per frame (median, p99, ms) of each shipped EBF method."""
+    from mocapnet.nn.checkpoints import shipped_checkpoint
+    from mocapnet.nn.infer import EBFStream, load_model
+
+    noisy, _ = corrupt_motion(clip, "angular-0.5", np.random.default_rng(1))
+    out = {}
+    for name in methods:
+        stream = EBFStream(load_model(shipped_checkpoint(name, clip.skeleton)), clip.skeleton, clip.fps)
+        cpu_ms, wall_ms = push_times(stream, noisy[:n_frames])
+        out[name] = {
+            "cpu_median_ms": float(np.median(cpu_ms)),
+            "cpu_p99_ms": float(np.percentile(cpu_ms, 99)),
+            "wall_median_ms": float(np.median(wall_ms)),
+            "wall_p99_ms": float(np.percentile(wall_ms, 99)),
+        }
+    return out
+
+
+def rss_child(method: str) -> dict:
+    """Peak RSS (MB) of a fresh process cleaning 300,000 frames with ``method`` (``rss_run``)."""
+    cmd = [sys.executable, "-m", "mocapnet.nn.bench", method]
+    return json.loads(subprocess.run(cmd, capture_output=True, text=True, check=True).stdout.splitlines()[-1])
+
+
+def rss_run(method: str) -> None:
+    """Print as JSON the peak RSS (MB) of cleaning a 300,000-frame clip with ``method`` in this process."""
+    pin_threads(1)
+    clip = long_clip(300_000)
+    clean = build_method(method).clean
+    mask = np.zeros(clip.channels.shape, dtype=bool)
+    before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    start = time.perf_counter()
+    clean(clip, mask)
+    seconds = time.perf_counter() - start
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    print(json.dumps({"peak_mb": peak, "before_clean_mb": before, "seconds": seconds, "frames": clip.n_frames}))
+
+
+def markdown(result: dict) -> str:
+    """The results file: provenance, the quality table, the gap-length bins and the speed table."""
+    lines = [
+        "# Learned cleaners (EBF variants, EBD): quality across corpora and speed",
+        "",
+        f"Command: `{result['command']}`  ",
+        f"Git commit: `{result['git_commit']}`; load average at start {result['load']} ({result['machine']}).",
+        "",
+    ]
+    if result.get("quality"):
+        lines += markdown_table(
+            ("corpus", "split", "corruption", "clips × repeats", "method", "headline °", "ratio", "frames/s"),
+            (
+                (e["corpus"], e.get("split", "test"), e["corruption"], f"{e['clips']} × {e['repeats']}", e["method"])
+                + (f"{fmt(e[e['ratio_of']])} ({e['ratio_of'].removesuffix('_deg')})", fmt(e["ratio"]))
+                + (f"{e['frames_per_s']:,.0f}",)
+                for e in result["quality"]
+            ),
+        )
+    if result.get("selection"):
+        lines += ["", f"Selection score (mean ratio over {', '.join(SELECTION)}; lowest wins):", ""]
+        lines += markdown_table(("method", "score"), ((m, fmt(s)) for m, s in result["selection"].items()))
+    if result.get("gap_bins"):
+        lines += ["", "EBD gap error per gap length (frames), RMS °:", ""]
+        by: dict[tuple, dict] = {}
+        for b in result["gap_bins"]:
+            by.setdefault((b["corpus"], b["corruption"], b["bin"]), {})[b["method"]] = b
+        lines += markdown_table(
+            ("corpus", "corruption", "bin", "gaps", "lerp", "spline", "ebd"),
+            (
+                (*key, m["lerp"]["gaps"], *(fmt(m[k]["rms_deg"]) for k in ("lerp", "spline", "ebd")))
+                for key, m in by.items()
+                if m["lerp"]["gaps"]
+            ),
+        )
+    if result.get("speed"):
+        sp = result["speed"]
+        lines += [
+            "",
+            f"Speed, 1 thread: offline {sp['offline_frames']:,}-frame bandai2 clip (median), 300,000-frame "
+            "clean peak RSS (fresh process), EBFStream.push per frame after the first window:",
+            "",
+        ]
+        rows = []
+        for m, o in sp["offline"].items():
+            r, s = sp["rss_300k"].get(m), sp["streaming"].get(m)
+            rss = (f"{r['peak_mb']:.0f}", f"{r['seconds']:.1f}") if r else ("—", "—")
+            push = (f"{s['cpu_median_ms']:.3f} / {s['cpu_p99_ms']:.3f}", f"{s['wall_p99_ms']:.2f}") if s else ("—", "—")
+            rows.append((m, f"{o['frames_per_s']:,.0f}", *rss, *push))
+        lines += markdown_table(
+            ("method", "offline frames/s", "300k peak RSS MB", "300k s", "push CPU median / p99 ms", "wall p99 ms"),
+            rows,
+        )
+    return "\n".join(lines) + "\n"
+
+
+if __name__ == "__main__":
+    rss_run(sys.argv[1])

@@ -1,0 +1,144 @@
+"""Per-clip input normalisation (``model.norm=clip``): the statistics, the invariance it buys, training crops
+normalised as their whole clip, chunked sequence mode, streaming (fixed and running statistics) and that
+corpus-normalised checkpoints behave as before."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from mocapnet.corrupt import additive_noise
+from mocapnet.nn.base import NORM_KEYS, clip_statistics
+from mocapnet.nn.data import as_batch, crop_statistics
+from mocapnet.nn.features import ClipArrays, Normaliser, root_angular_velocity, scored_index
+from mocapnet.nn.infer import CHUNK, OVERLAP, EBFStream, RunningStats, _stats_due, clean_channels, predict_sequence
+
+
+def _clip_model(tiny, sample, kind="ebf-free", **overrides):
+    model = tiny(kind, sample, norm="clip", **overrides).eval()
+    if kind == "ebf-free":
+        with torch.no_grad():
+            model.head[-1].weight.normal_(0.0, 0.3)  # kernels that differ from frame to frame
+    return model
+
+
+def test_clip_statistics_are_the_normaliser_of_one_clip(sample):
+    clip = ClipArrays.from_motion(sample)
+    norm = Normaliser.fit([clip.scored], [clip.angvel])
+    got = clip_statistics(torch.as_tensor(clip.scored, dtype=torch.float64), torch.as_tensor(clip.angvel))
+    np.testing.assert_allclose(got["center"][0].numpy(), norm.center, atol=1e-3)
+    np.testing.assert_allclose(got["scale"][0].numpy(), norm.scale, rtol=1e-3)
+    np.testing.assert_allclose(got["angvel_scale"][0].numpy(), norm.angvel_scale, rtol=1e-5)
+
+
+def test_clip_norm_output_follows_the_clips_amplitude(sample, tiny):
+    """Scaling a clip's deviations from its centre by a (and its angular velocity by b) scales the cleaned
+    deviations by a: the network sees the same inputs, and the filter is linear."""
+    model = _clip_model(tiny, sample, kind="ebf-bias")
+    clip = ClipArrays.from_motion(sample)
+    x = torch.as_tensor(clip.scored[200:320])[None]
+    w = torch.as_tensor(clip.angvel[200:320])[None]
+    center = clip_statistics(x, w)["center"]
+    with torch.no_grad():
+        base = model(x, w)
+        scaled = model(center + 0.5 * (x - center), 0.7 * w)
+    torch.testing.assert_close(scaled, center + 0.5 * (base - center), atol=2e-3, rtol=1e-4)
+    corpus = tiny("ebf-bias", sample).eval()
+    with torch.no_grad():
+        assert (
+            float((corpus(center + 0.5 * (x - center), 0.7 * w) - center - 0.5 * (corpus(x, w) - center)).abs().max())
+            > 1e-2
+        )
+
+
+def test_crop_statistics_match_the_whole_noisy_clip(sample):
+    """A training crop is normalised as its whole clip, noise included, would be (within a few percent)."""
+    clip = ClipArrays.from_motion(sample)
+    norm = Normaliser.fit([clip.scored], [clip.angvel])
+    clean = clip.scored.astype(np.float64)
+    noisy = additive_noise("angular-0.9", clean, clip.sigma, sample.fps, np.random.default_rng(0))
+    whole = clip_statistics(torch.as_tensor(noisy), torch.as_tensor(clip.angvel, dtype=torch.float64))
+    crop = crop_statistics(norm, clean[500:531], noisy[500:531], 1.25)
+    ratio = crop["scale"][0] / whole["scale"][0].numpy()
+    assert abs(np.median(ratio) - 1.0) < 0.03 and ratio.min() > 0.7 and ratio.max() < 1.4
+    np.testing.assert_allclose(crop["angvel_scale"][0], norm.angvel_scale * 1.25)
+    batch = as_batch(noisy[None], np.zeros((1, *noisy.shape), bool), clean[None], clip.angvel[None])
+    for key in NORM_KEYS:  # a batch without given statistics carries those of its whole clips
+        torch.testing.assert_close(batch[key], whole[key].float()[None])
+
+
+def test_chunked_sequence_mode_keeps_the_whole_clips_statistics(sample, tiny):
+    model = _clip_model(tiny, sample)
+    n = CHUNK + 2 * OVERLAP + 300
+    clip = ClipArrays.from_motion(sample)
+    x, w = torch.as_tensor(clip.scored[:n])[None], torch.as_tensor(clip.angvel[:n])[None]
+    batch = {"filled": x, "mask": torch.zeros_like(x, dtype=torch.bool), "angvel": w} | clip_statistics(x, w)
+    with torch.inference_mode():
+        diff = (predict_sequence(model, batch) - model(x, w)[0]).abs()
+    assert float(diff.max()) < 0.2 and float(diff.pow(2).mean().sqrt()) < 0.01
+
+
+@pytest.mark.parametrize("length", [20, 80])
+def test_stream_with_fixed_statistics_matches_windowed_mode(length, sample, tiny):
+    model = _clip_model(tiny, sample)
+    clip = sample.channels[300 : 300 + length]
+    expected = clean_channels(model, clip, np.zeros(clip.shape, bool), sample.skeleton, sample.fps, "windowed")
+    x = torch.as_tensor(clip[:, scored_index(sample.skeleton)], dtype=torch.float32)
+    w = torch.as_tensor(root_angular_velocity(sample.skeleton, clip, sample.fps), dtype=torch.float32)
+    stats = tuple(v[0].numpy() for v in clip_statistics(x, w).values())
+    stream = EBFStream(model, sample.skeleton, sample.fps, stats=stats)
+    got = [item for frame in clip for item in stream.push(frame)] + stream.flush()
+    assert [i for i, _ in got] == list(range(length))
+    np.testing.assert_allclose(np.stack([f for _, f in got]), expected, atol=1e-3)
+
+
+def test_stream_with_running_statistics(sample, tiny):
+    """Without given statistics the stream uses those of what it has seen: on a stream no longer than one
+    window every frame comes out at the flush, with the whole clip's statistics (= windowed mode); on a longer
+    one the early frames differ (fewer frames seen) but stay close."""
+    model = _clip_model(tiny, sample)
+    for length, tol in ((25, 1e-3), (200, None)):
+        clip = sample.channels[300 : 300 + length]
+        expected = clean_channels(model, clip, np.zeros(clip.shape, bool), sample.skeleton, sample.fps, "windowed")
+        stream = EBFStream(model, sample.skeleton, sample.fps)
+        got = np.stack([f for frame in clip for _, f in stream.push(frame)] + [f for _, f in stream.flush()])
+        assert np.isfinite(got).all()
+        if tol:
+            np.testing.assert_allclose(got, expected, atol=tol)
+        else:
+            idx = scored_index(sample.skeleton)
+            spread = np.abs(clip[:, idx] - clip[:, idx].mean(0)).max()
+            assert np.abs(got - expected).max() < 0.5 * spread
+
+
+def test_running_statistics_and_refresh_schedule(sample):
+    clip = ClipArrays.from_motion(sample)
+    running = RunningStats(clip.scored.shape[1])
+    for row, w in zip(clip.scored[:400].astype(np.float64), clip.angvel[:400]):
+        running.add(row)
+        running.add_angvel(w)
+    center, scale, angvel_scale = running.stats()
+    norm = Normaliser.fit([clip.scored[:400]], [clip.angvel[:400]])
+    np.testing.assert_allclose(center, norm.center, atol=1e-3)
+    np.testing.assert_allclose(scale, norm.scale, rtol=1e-3)
+    np.testing.assert_allclose(angvel_scale, norm.angvel_scale, rtol=1e-4)
+    due = [n for n in range(1, 3000) if _stats_due(n, 31)]
+    assert due == [31, 62, 124, 248, 496, 992, 1024, 2048]
+
+
+def test_corpus_normalised_models_ignore_clip_statistics(sample, tiny, batch):
+    """norm=corpus (every checkpoint before this option) normalises with its buffers, whatever the batch holds."""
+    model = tiny("ebf-bias", sample).eval()
+    assert model.hparams.norm == "corpus"
+    with torch.no_grad():
+        plain = model(batch["filled"], batch["angvel"])
+        other = {"center": torch.zeros(2, 1, 90), "scale": torch.ones(2, 1, 90), "angvel_scale": torch.ones(2, 1, 3)}
+        torch.testing.assert_close(model.predict_batch(batch | other), plain)
+
+
+def test_unknown_norm_and_bias_bound_are_refused(sample, tiny):
+    with pytest.raises(ValueError, match="norm must be one of"):
+        tiny("ebf", sample, norm="batch")
+    with pytest.raises(ValueError, match="bias_bound"):
+        tiny("ebf-bias", sample, bias_bound=0.0)
