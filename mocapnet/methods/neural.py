@@ -14,7 +14,8 @@ A variant name given a checkpoint checks that the checkpoint is that variant; ``
     --method ebf:mode=windowed,checkpoints=run/best.ckpt   both
     --method ebd+ebf=ebd.ckpt,ebf.ckpt:mode=windowed       both, with two checkpoints
 
-Gaps are filled by linear interpolation before any network (EBD then replaces the interpolated samples).
+Gaps are filled by linear interpolation before any network; EBD's fill of each gap is then blended with the
+better interpolation for its length and self-checked (``mocapnet.nn.ebd.blend_gaps``).
 Only the scored channels change. torch is imported when a method is built, never by ``import mocapnet``.
 """
 
@@ -88,7 +89,13 @@ def _check_mode(mode: str) -> str:
 
 
 def _single(method: str):
-    def factory(context: MethodContext, checkpoints: Sequence[str] | str = (), mode: str = "sequence"):
+    def factory(
+        context: MethodContext,
+        checkpoints: Sequence[str] | str = (),
+        mode: str = "sequence",
+        limit: float | None = None,
+    ):
+        """``limit``: EBF's self-check factor (``infer.limit_change``; default ``infer.EBF_CHANGE_LIMIT``, 0 off)."""
         from mocapnet.nn.infer import clean_channels
 
         checkpoints = _paths(checkpoints)
@@ -96,9 +103,12 @@ def _single(method: str):
             raise ValueError(f"{method} takes one checkpoint, got {len(checkpoints)}")
         resolve = _resolver(method, checkpoints[0] if checkpoints else None)
         _check_mode(mode)
+        if limit is not None and not (isinstance(limit, (int, float)) and limit >= 0):
+            raise ValueError(f"{method}: limit must be a number >= 0, got {limit!r}")
 
         def clean(noisy: Motion, mask: np.ndarray) -> np.ndarray:
-            return clean_channels(resolve(noisy), noisy.channels, mask, noisy.skeleton, noisy.fps, mode)
+            model = resolve(noisy)
+            return clean_channels(model, noisy.channels, mask, noisy.skeleton, noisy.fps, mode, change_limit=limit)
 
         return clean
 
