@@ -128,6 +128,34 @@ def predict_sequence(model: CleanerModule, batch: dict[str, torch.Tensor]) -> to
     return out
 
 
+#: EBF's self-check (``limit_change``): each scored channel's RMS change is capped at this many times the noise
+#: level the input shows (``noise_level``); 0 turns it off. Chosen on bandai2 fold 1 (``mocapnet.nn.bench``).
+EBF_CHANGE_LIMIT = 0.0
+
+
+def noise_level(x: np.ndarray) -> np.ndarray:
+    """Standard deviation ``[C]`` (degrees) of white noise that ``x [T, C]`` (degrees) shows, from its second
+    differences (``6σ²`` for white noise): ``1.4826·MAD / √6``, robust to the motion's own curvature at a few
+    frames and to spikes; the motion's curvature can only raise it. Zeros for fewer than 3 frames."""
+    if len(x) < 3:
+        return np.zeros(x.shape[1])
+    d2 = np.diff(np.unwrap(x, period=360.0, axis=0), n=2, axis=0)
+    mad = np.median(np.abs(d2 - np.median(d2, axis=0)), axis=0)
+    return 1.4826 * mad / np.sqrt(6.0)
+
+
+def limit_change(noisy: np.ndarray, cleaned: np.ndarray, factor: float) -> np.ndarray:
+    """The self-check: ``cleaned [T, C]`` moved back toward ``noisy [T, C]`` (degrees) on each channel whose RMS
+    change exceeds ``factor`` × its ``noise_level``, so that it changes by exactly that much. A denoiser has no
+    business changing a channel by much more than the noise it shows (on nearly clean input a learned filter
+    otherwise smooths away real motion)."""
+    change = (cleaned - noisy + 180.0) % 360.0 - 180.0
+    rms = np.sqrt(np.mean(change**2, axis=0))
+    cap = factor * noise_level(noisy)
+    shrink = np.where(rms > cap, cap / np.maximum(rms, 1e-12), 1.0)
+    return noisy + change * shrink
+
+
 @torch.inference_mode()
 def clean_channels(
     model: CleanerModule,
@@ -137,13 +165,15 @@ def clean_channels(
     fps: float,
     mode: str = "sequence",
     gap_blend: GapBlend | None = GAP_BLEND,
+    change_limit: float | None = None,
 ) -> np.ndarray:
     """Clean one clip: ``channels [T, C]`` (degrees, NaN where ``mask [T, C]`` is True) → ``[T, C]``.
 
     Gaps are first filled by linear interpolation; only the scored channels change (EBD changes only their
     missing samples). ``mode``: ``"sequence"`` (in overlapping chunks on long clips, ``predict_sequence``) or
     ``"windowed"`` (module docstring). ``gap_blend``: how EBD's fill is blended with interpolation and
-    self-checked (``ebd.blend_gaps``); None keeps the network's fill as it comes.
+    self-checked (``ebd.blend_gaps``); None keeps the network's fill as it comes. ``change_limit``: EBF's
+    self-check factor (``limit_change``; None: ``EBF_CHANGE_LIMIT``, 0: none).
     """
     if mode not in MODES:
         raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
@@ -167,7 +197,9 @@ def clean_channels(
         else:
             result[:, idx] = blend_gaps(scored, mask[:, idx], out.numpy(), fps, gap_blend)[0]
     else:
-        result[:, idx] = out.numpy()
+        limit = EBF_CHANGE_LIMIT if change_limit is None else change_limit
+        cleaned = out.numpy().astype(np.float64)
+        result[:, idx] = limit_change(result[:, idx], cleaned, limit) if limit > 0 else cleaned
     return result
 
 
@@ -177,9 +209,10 @@ class _CentreKernel:
 
     Savings over running ``nn.LSTM`` on the window: layer 1's input projection is computed once per frame
     (``project``) and kept; both directions of a layer step together (one batched product per step, into
-    preallocated buffers whose gate views are made once); the gate rows are reordered to (input, forget,
-    output, cell) and those of the three sigmoid gates halved, so one tanh covers all four
-    (``σ(x) = (1 + tanh(x/2)) / 2``); layer 2 runs only the steps its centre output depends on (``half + 1``
+    preallocated buffers whose gate views are made once); the gate rows are reordered to (cell, forget,
+    input, output) and those of the three sigmoid gates halved, so one tanh covers all four
+    (``σ(x) = (1 + tanh(x/2)) / 2``), and the cell state sits just before the gates, so ``f·c`` and ``i·g`` are
+    one product of adjacent pairs; layer 2 runs only the steps its centre output depends on (``half + 1``
     each way instead of ``2·half + 1``); the encoder, head and filter touch one frame. Same arithmetic as the
     torch modules (float32 rounding apart).
     """
@@ -187,8 +220,11 @@ class _CentreKernel:
     def __init__(self, model: EBF) -> None:
         lstm = model.blstm.lstm
         hid = lstm.hidden_size
-        order = np.concatenate([np.arange(0, 2 * hid), np.arange(3 * hid, 4 * hid), np.arange(2 * hid, 3 * hid)])
-        half_sig = np.where(np.arange(4 * hid) < 3 * hid, 0.5, 1.0).astype(np.float32)
+        # torch's gate order is (i, f, g, o); here (g, f, i, o)
+        order = np.concatenate(
+            [np.arange(2 * hid, 3 * hid), np.arange(hid, 2 * hid), np.arange(hid), np.arange(3 * hid, 4 * hid)]
+        )
+        half_sig = np.where(np.arange(4 * hid) >= hid, 0.5, 1.0).astype(np.float32)
 
         def both(name: str, layer: int) -> np.ndarray:
             fwd, bwd = getattr(lstm, f"{name}_l{layer}"), getattr(lstm, f"{name}_l{layer}_reverse")
@@ -213,12 +249,12 @@ class _CentreKernel:
         width = 2 * self.half + 1
         # step buffers: h, c [2, 1, H]; gates [2, 1, 4H] and views of them; layer-1 outputs [W, 2, 1, H]
         self._h = np.zeros((2, 1, hid), dtype=np.float32)
-        self._c = np.zeros((2, 1, hid), dtype=np.float32)
         self._tmp = np.zeros((2, 1, hid), dtype=np.float32)
-        self._gates = np.zeros((2, 1, 4 * hid), dtype=np.float32)
-        g = self._gates
-        self._sig, self._cell = g[..., : 3 * hid], g[..., 3 * hid :]
-        self._i, self._f, self._o = g[..., :hid], g[..., hid : 2 * hid], g[..., 2 * hid : 3 * hid]
+        self._prod = np.zeros((2, 1, 2 * hid), dtype=np.float32)
+        # [c | g | f | i | o]: the cell state, then the gates (the matmul's output)
+        z = self._state = np.zeros((2, 1, 5 * hid), dtype=np.float32)
+        self._c, self._gates, self._sig, self._o = z[..., :hid], z[..., hid:], z[..., 2 * hid :], z[..., 4 * hid :]
+        self._cg, self._fi = z[..., : 2 * hid], z[..., 2 * hid : 4 * hid]
         self._layer1 = np.zeros((width, 2, 1, hid), dtype=np.float32)
         self._seq = np.zeros((width, 2, 1, 4 * hid), dtype=np.float32)
 
@@ -246,8 +282,9 @@ class _CentreKernel:
     def _steps(self, proj: np.ndarray, out: np.ndarray | None, layer: int) -> np.ndarray:
         """Run both directions of ``layer`` over ``proj [S, 2, 1, 4H]`` (row s: forward step s, backward step
         s); writes the hidden states into ``out [S, 2, 1, H]`` when given; returns the last ``[2, 1, H]``."""
-        c, tmp, gates, sig, cell = self._c, self._tmp, self._gates, self._sig, self._cell
-        i, f, o, whh_t = self._i, self._f, self._o, self.whh_t[layer]
+        c, tmp, gates, sig, o, whh_t = self._c, self._tmp, self._gates, self._sig, self._o, self.whh_t[layer]
+        cg, fi, prod, hid = self._cg, self._fi, self._prod, self.hidden
+        fc, ig = prod[..., :hid], prod[..., hid:]
         h = self._h
         h.fill(0.0)
         c.fill(0.0)
@@ -257,9 +294,8 @@ class _CentreKernel:
             np.tanh(gates, out=gates)  # sigmoid gates: tanh of half their input (weights halved)
             sig *= 0.5
             sig += 0.5
-            c *= f
-            np.multiply(i, cell, out=tmp)
-            c += tmp
+            np.multiply(fi, cg, out=prod)  # [f·c | i·g]
+            np.add(fc, ig, out=c)
             np.tanh(c, out=tmp)
             h = self._h if out is None else out[s]
             np.multiply(o, tmp, out=h)

@@ -12,7 +12,17 @@ from mocapnet.corrupt import additive_noise
 from mocapnet.nn.base import NORM_KEYS, clip_statistics
 from mocapnet.nn.data import as_batch, crop_statistics
 from mocapnet.nn.features import ClipArrays, Normaliser, root_angular_velocity, scored_index
-from mocapnet.nn.infer import CHUNK, OVERLAP, EBFStream, RunningStats, _stats_due, clean_channels, predict_sequence
+from mocapnet.nn.infer import (
+    CHUNK,
+    OVERLAP,
+    EBFStream,
+    RunningStats,
+    _stats_due,
+    clean_channels,
+    limit_change,
+    noise_level,
+    predict_sequence,
+)
 
 
 def _clip_model(tiny, sample, kind="ebf-free", **overrides):
@@ -142,3 +152,35 @@ def test_unknown_norm_and_bias_bound_are_refused(sample, tiny):
         tiny("ebf", sample, norm="batch")
     with pytest.raises(ValueError, match="bias_bound"):
         tiny("ebf-bias", sample, bias_bound=0.0)
+
+
+def test_noise_level_sees_white_noise_not_smooth_motion():
+    t = np.arange(600) / 30.0
+    motion = 40.0 * np.sin(2 * np.pi * 0.5 * t)[:, None] * np.ones((1, 3))
+    noise = np.random.default_rng(0).standard_normal(motion.shape) * np.array([0.2, 1.0, 3.0])
+    np.testing.assert_allclose(noise_level(motion + noise), [0.2, 1.0, 3.0], rtol=0.15)
+    curvature = 1.4826 * 40.0 * (np.pi / 30.0) ** 2 / np.sqrt(6.0)  # MAD <= the largest second difference
+    assert noise_level(motion).max() < curvature and noise_level(motion[:2]).tolist() == [0.0, 0.0, 0.0]
+
+
+def test_limit_change_caps_each_channels_change_at_its_noise_level():
+    rng = np.random.default_rng(1)
+    noisy = np.cumsum(rng.standard_normal((300, 2)) * 0.1, axis=0) + rng.standard_normal((300, 2)) * 0.5
+    cleaned = noisy.copy()
+    cleaned[:, 0] = noisy[:, 0].mean()  # changes far more than the noise: pulled back
+    cleaned[:, 1] += rng.standard_normal(300) * 0.1  # changes less: kept
+    out = limit_change(noisy, cleaned, 1.5)
+    rms = np.sqrt(np.mean((out - noisy) ** 2, axis=0))
+    np.testing.assert_allclose(rms[0], 1.5 * noise_level(noisy)[0], rtol=1e-9)
+    np.testing.assert_allclose(out[:, 1], cleaned[:, 1], atol=1e-12)
+
+
+def test_clean_channels_applies_the_self_check_only_when_asked(sample, tiny):
+    model = tiny("ebf-free", sample).eval()
+    clip = sample.channels[:200]
+    no_mask = np.zeros(clip.shape, bool)
+    plain = clean_channels(model, clip, no_mask, sample.skeleton, sample.fps, change_limit=0.0)
+    checked = clean_channels(model, clip, no_mask, sample.skeleton, sample.fps, change_limit=1.0)
+    idx = scored_index(sample.skeleton)
+    np.testing.assert_allclose(checked[:, idx], limit_change(clip[:, idx], plain[:, idx], 1.0), atol=1e-9)
+    assert np.abs(checked - plain).max() > 1e-3
