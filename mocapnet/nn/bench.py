@@ -28,7 +28,7 @@ import mocapnet.methods.neural  # noqa: F401  (registers the EBF variant names)
 from mocapnet.corpus import load_corpus
 from mocapnet.corrupt import ANGLE_CORRUPTIONS, corrupt_motion, seed_for
 from mocapnet.evaluate.harness import Evaluation, corpus_references, evaluate_angles, has_gaps
-from mocapnet.evaluate.metrics import wrapped_diff
+from mocapnet.evaluate.metrics import angle_err_deg, wrapped_diff
 from mocapnet.evaluate.report import fmt, markdown_table, summarize
 from mocapnet.fill import runs
 from mocapnet.methods.registry import build_method
@@ -208,6 +208,32 @@ def streaming(clip: Motion, methods: Sequence[str], n_frames: int) -> dict:
             "wall_median_ms": float(np.median(wall_ms)),
             "wall_p99_ms": float(np.percentile(wall_ms, 99)),
         }
+    return out
+
+
+def streaming_quality(
+    checkpoint: str, name: str, corruptions: Sequence[str], n_clips: int | None, split: str = "val"
+) -> list[dict]:
+    """What streaming costs in quality: mean over clips of the per-clip RMS angle error (degrees) of windowed
+    mode (whole-clip statistics) and of ``EBFStream`` (for a ``norm="clip"`` network: running statistics of
+    the frames seen so far), on each corruption, 1 repeat."""
+    from mocapnet.nn.infer import EBFStream, clean_channels, load_model
+
+    model = load_model(checkpoint)
+    _, clips, _ = split_clips(name, split, n_clips)
+    out = []
+    for corruption in corruptions:
+        errors: dict[str, list[float]] = {"windowed": [], "stream": []}
+        for motion in clips:
+            rng = np.random.default_rng(seed_for(name, motion.name, 0, corruption))
+            noisy, mask = corrupt_motion(motion, corruption, rng)
+            windowed = clean_channels(model, noisy, mask, motion.skeleton, motion.fps, "windowed")
+            stream = EBFStream(model, motion.skeleton, motion.fps)
+            frames = [f for row in noisy for _, f in stream.push(row)] + [f for _, f in stream.flush()]
+            for key, cleaned in (("windowed", windowed), ("stream", np.stack(frames))):
+                errors[key].append(angle_err_deg(cleaned, motion.channels, motion.skeleton.scored_mask))
+        row = {"corpus": name, "split": split, "corruption": corruption, "clips": len(clips)}
+        out.append(row | {f"{k}_deg": float(np.mean(v)) for k, v in errors.items()})
     return out
 
 

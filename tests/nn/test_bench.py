@@ -1,0 +1,47 @@
+"""The learned-cleaner benchmark's bookkeeping (mocapnet.nn.bench, scripts/bench_neural.py): the selection
+rule, the results file, and that bandai1 cannot be used for selection."""
+
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+
+import pytest
+
+from mocapnet.nn import bench
+
+SCRIPT = Path(__file__).resolve().parents[2] / "scripts" / "bench_neural.py"
+
+
+def _rows(method: str, ratios: dict[str, float]) -> list[dict]:
+    return [{"method": method, "corruption": c, "ratio": r} for c, r in ratios.items()]
+
+
+def test_selection_score_is_the_mean_ratio_over_the_selection_corruptions():
+    full = dict(zip(bench.SELECTION, (0.9, 0.8, 1.0, 1.1, 0.7, 0.9)))
+    rows = _rows("a", full) + _rows("b", {c: 1.0 for c in bench.SELECTION}) + _rows("c", {"angular-0.5": 0.1})
+    rows += _rows("a", {"gaps": 5.0})  # not a selection corruption: ignored
+    scores = bench.selection_scores(rows)
+    assert scores == pytest.approx({"a": sum(full.values()) / len(full), "b": 1.0})  # c lacks corruptions
+
+
+def test_markdown_lists_quality_and_selection():
+    entry = {"method": "ebf", "angle_err_deg": 1.5, "ratio": 0.75, "ratio_of": "angle_err_deg", "frames_per_s": 1e3}
+    meta = {"corpus": "bandai2", "split": "val", "corruption": "angular-0.5", "clips": 3, "repeats": 1}
+    result = {"command": "c", "git_commit": "g", "machine": "m", "load": "1.0", "quality": [entry | meta]}
+    text = bench.markdown(result | {"selection": {"ebf": 0.75}})
+    assert "| bandai2 | val | angular-0.5 | 3 × 1 | ebf | 1.500 (angle_err) | 0.750 | 1,000 |" in text
+    assert "| ebf | 0.750 |" in text
+
+
+def test_bandai1_cannot_be_a_selection_split():
+    spec = importlib.util.spec_from_file_location("bench_neural", SCRIPT)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    with pytest.raises(SystemExit):
+        module.parse_args(["--split", "val"])  # default corpora include bandai1
+    with pytest.raises(SystemExit):
+        module.parse_args(["--split", "val", "--corpus", "bandai1"])
+    assert module.parse_args(["--split", "val", "--corpus", "bandai2"]).split == "val"
+    with pytest.raises(ValueError, match="split"):
+        bench.split_clips("bandai2", "train", 3)
