@@ -7,7 +7,7 @@ PyPI gapfill); what is scored and how: ``mocapnet.evaluate.extrapolate_bench``.
 Writes ``benchmarks/results/extrapolate.md``, ``extrapolate_error_vs_gap.png`` and the whole report (with the
 per-file errors) as ``extrapolate.json.gz``.
 
-    nice -n 10 .venv/bin/python scripts/bench_extrapolate.py            # full run (20 onsets: about 10 min idle)
+    nice -n 10 .venv/bin/python scripts/bench_extrapolate.py            # full run, 20 onsets (committed run: 541 s)
     .venv/bin/python scripts/bench_extrapolate.py --quick --out /tmp/x  # small run
 """
 
