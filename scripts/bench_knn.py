@@ -1,7 +1,8 @@
 """Benchmark of the data-driven gap filler ``knn`` against lerp, spline, PCA and ``gapfill`` (issue 12): BVH
 (bandai2 and bandai1 fold 0, database bandai2), C3D whole-segment gaps, fill time per second of gap; the
 work is in ``mocapnet.evaluate.knn_bench``. Writes ``benchmarks/results/knn.md`` and ``knn.json``;
-``--tune`` scores setting variations on bandai2 fold 1 only and writes ``knn_tuning.md`` / ``.json``.
+``--tune`` scores setting variations on bandai2 fold 1 only and writes ``knn_tuning.md`` / ``.json``
+(``--grid plateau``: the third round, ``knn_tuning_plateau.md``).
 
     nice -n 5 .venv/bin/python scripts/bench_knn.py --tune     # bandai2 fold 1 only
     nice -n 5 .venv/bin/python scripts/bench_knn.py            # the benchmark
@@ -28,6 +29,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--repeats", type=int, default=1, help="repeats per clip and corruption (default 1)")
     parser.add_argument("--out", type=Path, default=REPO / "benchmarks" / "results", help="output folder")
     parser.add_argument("--tune", action="store_true", help="score setting variations on bandai2 fold 1 instead")
+    grids = ", ".join(knn_bench.GRIDS)
+    parser.add_argument("--grid", choices=knn_bench.GRIDS, default="main", help=f"--tune: variations ({grids})")
     args = parser.parse_args(argv)
     pin_threads(1)
     report = provenance(argv)
@@ -39,9 +42,10 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     started = time.time()
     if args.tune:
-        rows = knn_bench.tune(min(args.clips, 20))
+        rows = knn_bench.tune(min(args.clips, 20), knn_bench.GRIDS[args.grid])
         report.update(rows=rows, wall_s=time.time() - started)
-        write_results(args.out / "knn_tuning", report, knn_bench.tune_markdown(rows, report))
+        stem = "knn_tuning" + ("" if args.grid == "main" else f"_{args.grid}")
+        write_results(args.out / stem, report, knn_bench.tune_markdown(rows, report))
         return 0
     report.update(n_clips=args.clips, repeats=args.repeats, speed=knn_bench.bench_speed(10))
     report.update(bvh=knn_bench.bench_bvh(args.clips, args.repeats), c3d=knn_bench.bench_c3d(root, args.repeats))

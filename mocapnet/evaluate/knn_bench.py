@@ -72,6 +72,15 @@ TUNE_VARIANTS: tuple[dict, ...] = (
     {"limb_distance": True, "max_weight": 0.7, "distance_gain": 6.0},
     {"limb_distance": True, "speed": 120.0, "distance_gain": 6.0},
 )
+# Round 3 (``--tune --grid plateau``), around the defaults chosen by the grid above.
+PLATEAU_VARIANTS: tuple[dict, ...] = (
+    {},
+    {"plateau_s": 0.25},
+    {"plateau_s": 0.5},
+    {"plateau_s": 1.0},
+    {"plateau_s": 0.5, "max_weight": 0.7},
+)
+GRIDS = {"main": TUNE_VARIANTS, "plateau": PLATEAU_VARIANTS}
 
 
 def evenly(items: Sequence, n: int) -> list:
@@ -158,8 +167,9 @@ def variant_name(variant: dict) -> str:
     return ", ".join(f"{k}={v}" for k, v in variant.items()) or "defaults"
 
 
-def tune(n_clips: int) -> list[dict]:
-    """Rows (``score_motions``, plus ``mode`` in/out) of lerp, pca and every ``TUNE_VARIANTS`` knn on
+def tune(n_clips: int, variants: Sequence[dict] = TUNE_VARIANTS) -> list[dict]:
+    """Rows (``score_motions``, plus ``mode`` in/out) of lerp, pca and every knn of ``variants`` (changes of
+    ``ANGLE_DEFAULTS``) on
     ``n_clips`` bandai2 fold-1 clips of at least 7 s (module docstring)."""
     corpus = load_corpus("bandai2", progress=False)
     train, _, val = corpus.split(1)
@@ -180,9 +190,7 @@ def tune(n_clips: int) -> list[dict]:
     for c in TUNE_CORRUPTIONS:
         base, _ = evaluate_angles(corpus, clips, train, c, ("lerp", "pca"), 1, progress=False)
         for mode in ("in", "out"):
-            built = [
-                (variant_name(v), knn(WindowSettings(**{**ANGLE_DEFAULTS, **v}), mode == "out")) for v in TUNE_VARIANTS
-            ]
+            built = [(variant_name(v), knn(WindowSettings(**{**ANGLE_DEFAULTS, **v}), mode == "out")) for v in variants]
             got, _ = score_motions(clips, built, "bandai2", Corruption.parse(c), 1)
             rows += [{**r, "mode": mode} for r in base + got]
         print(f"tune {c} done", flush=True)
@@ -192,6 +200,11 @@ def tune(n_clips: int) -> list[dict]:
 def _mean(rows: list[dict], key: str, **where: object) -> float:
     vals = [r[key] for r in rows if all(r[k] == v for k, v in where.items()) and np.isfinite(r[key])]
     return float(np.mean(vals)) if vals else float("nan")
+
+
+def variants_of(rows: list[dict]) -> list[str]:
+    """The knn variants of ``tune`` rows, in order of appearance."""
+    return list(dict.fromkeys(r["method"] for r in rows if r["method"] not in ("lerp", "pca")))
 
 
 def tune_scores(rows: list[dict]) -> dict[str, float]:
@@ -204,7 +217,7 @@ def tune_scores(rows: list[dict]) -> dict[str, float]:
             best_pos = min(_mean(sel, "pos_err_cm", method=m) for m in ("lerp", "pca"))
             rms = {m: np.sqrt(_mean([{"g": r["gap_err_deg"] ** 2} for r in sel if r["method"] == m], "g"))
                    for m in {r["method"] for r in sel}}  # fmt: skip
-            for v in map(variant_name, TUNE_VARIANTS):
+            for v in variants_of(rows):
                 ratio = max(_mean(sel, "pos_err_cm", method=v) / best_pos, rms[v] / rms["lerp"])
                 scores.setdefault(v, []).append(ratio)
     return {v: float(np.mean(s)) for v, s in scores.items()}
@@ -228,7 +241,7 @@ def tune_markdown(rows: list[dict], report: dict) -> str:
         "",
     ]
     body = []
-    for m in ["lerp", "pca", *map(variant_name, TUNE_VARIANTS)]:
+    for m in ["lerp", "pca", *variants_of(rows)]:
         out = []
         for c, mode in cells:
             sel = [r for r in rows if r["corruption"] == c and r["mode"] == mode and r["method"] == m]
