@@ -21,13 +21,16 @@ For every *gap* (maximal run of frames in which some scored channel is missing):
    own missing run, each neighbour contributes its deviation from its own straight line between the run's
    edge frames, added to the linear interpolation of the observed edges (one edge only: its offset). The
    weighted mean is the estimate; the weighted spread of the contributions (degrees) is kept.
-4. **Blend.** ``out = f + β (knn − f)`` with ``β = 1 / (1 + (σ / (speed · d))²)``, d (s) the distance
-   to the nearest observed frame of that channel and ``σ² = spread² + (distance_gain · rms)²`` (rms: the
-   neighbours' feature distance per point, cm). The fallback f is linear interpolation or (default) the
-   clip's own PCA fill (Gløersen & Federolf on the joint positions, back to angles by IK, ``pca_angles``):
-   f next to the observed frames, where the neighbours disagree, or where nothing in the database is
-   close (motion the database lacks); the database where they agree. With the truth in the database
-   σ = 0 and the fill is exact.
+4. **Blend.** ``out = f + β (knn − f)`` with ``β = max_weight / (1 + (σ / (speed · d))²)``, d (s) the
+   distance to the nearest observed frame of that channel (capped at ``plateau_s`` when set) and
+   ``σ² = spread² + (distance_gain · rms)²``. rms is the neighbours' feature distance per point (cm): by
+   default (``limb_distance``) measured on the missing limb's own points in the window's margins, where they
+   are observed, which tells a neighbour that moves the limb otherwise apart from one that only matches
+   the rest of the body. The fallback f is linear interpolation or (default) the clip's own PCA fill
+   (Gløersen & Federolf on the joint positions, back to angles by IK, ``pca_angles``): f next to the
+   observed frames, where the neighbours disagree, or where nothing in the database moves the limb alike
+   (motion the database lacks); the database where they agree. With the truth in the database σ = 0 and
+   the fill is exact.
 
 Observed samples and unscored channels are never changed; missing unscored channels are interpolated.
 """
@@ -242,7 +245,7 @@ def angle_filler(
     "angles",
     help="kNN in joint space from a large clean database (default: the largest corpus of the skeleton, cached), "
     "offset-corrected and blended with the clip's PCA fill; options k, margin_s, near_gain, speed, offset, "
-    "query_hz, distance_gain, own, fallback, max_weight, database",
+    "query_hz, distance_gain, own, fallback, max_weight, limb_distance, plateau_s, database",
 )
 def _knn_angles(
     context: MethodContext, database: str | None = None, **options: Any
