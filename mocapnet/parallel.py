@@ -87,6 +87,12 @@ def _tune_malloc() -> None:
         pass
 
 
+def worker_info(_: object = None) -> dict[str, Any]:
+    """What a task sees of its process (run it through ``map_tasks`` to inspect workers): ``pid``, whether
+    ``WORKER_MALLOC`` was applied (``malloc_tuned``), and the OpenMP thread setting."""
+    return {"pid": os.getpid(), "malloc_tuned": _malloc_tuned, "omp_threads": os.environ.get("OMP_NUM_THREADS")}
+
+
 def _run_pinned(item: Any, fn: Callable[..., Any], threads: int, *shared: Any) -> Any:
     """Run one task on a worker after pinning its threads and tuning its malloc (no-ops once done; covers
     late-joining workers)."""
