@@ -358,7 +358,10 @@ STATS_EVERY = 1024
 class RunningStats:
     """``base.clip_statistics`` of the frames a stream has seen so far, kept as running sums: circular mean per
     channel (sums of sin and cos), std of the values wrapped into ±180° of the first frame's (sums and sums of
-    squares), RMS of the root angular velocity."""
+    squares), RMS of the root angular velocity. Frames are folded into the sums ``BLOCK`` at a time (one
+    vectorised update per block, so a push costs a row copy)."""
+
+    BLOCK = 32
 
     def __init__(self, n_channels: int) -> None:
         self.n = 0
@@ -366,18 +369,29 @@ class RunningStats:
         self.sum, self.sumsq = np.zeros(n_channels), np.zeros(n_channels)
         self.ref: np.ndarray | None = None
         self.n_angvel, self.angvel_sq = 0, np.zeros(3)
+        self._block = np.zeros((self.BLOCK, n_channels))
+        self._pending = 0
 
     def add(self, scored: np.ndarray) -> None:
         """One frame's scored channels ``[C]`` (degrees)."""
         if self.ref is None:
             self.ref = scored.astype(np.float64)
-        rad = np.deg2rad(scored)
-        self.sin += np.sin(rad)
-        self.cos += np.cos(rad)
-        x = self.ref - ((self.ref - scored + 180.0) % 360.0 - 180.0)
-        self.sum += x
-        self.sumsq += x * x
-        self.n += 1
+        self._block[self._pending] = scored
+        self._pending += 1
+        if self._pending == self.BLOCK:
+            self._fold()
+
+    def _fold(self) -> None:
+        """Add the pending frames to the sums."""
+        block = self._block[: self._pending]
+        rad = np.deg2rad(block)
+        self.sin += np.sin(rad).sum(0)
+        self.cos += np.cos(rad).sum(0)
+        x = self.ref - ((self.ref - block + 180.0) % 360.0 - 180.0)
+        self.sum += x.sum(0)
+        self.sumsq += (x * x).sum(0)
+        self.n += self._pending
+        self._pending = 0
 
     def add_angvel(self, angvel: np.ndarray) -> None:
         """One frame's root angular velocity ``[3]`` (rad/s)."""
@@ -386,6 +400,8 @@ class RunningStats:
 
     def stats(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(center [C], scale [C], angvel_scale [3])`` as ``clip_statistics`` defines them."""
+        if self._pending:
+            self._fold()
         center = np.rad2deg(np.arctan2(self.sin, self.cos))
         mean = self.sum / max(self.n, 1)
         var = np.maximum(self.sumsq / max(self.n, 1) - mean * mean, 0.0)
