@@ -33,6 +33,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument(
         "--select", action="store_true", help=f"selection score: mean ratio over {', '.join(bench.SELECTION)}"
     )
+    parser.add_argument(
+        "--stream-quality", metavar="CKPT", help="windowed vs EBFStream error of a checkpoint (running clip stats)"
+    )
     parser.add_argument("--skip-quality", action="store_true")
     parser.add_argument("--skip-bins", action="store_true")
     parser.add_argument("--skip-speed", action="store_true")
@@ -60,6 +63,12 @@ def main(argv: list[str] | None = None) -> None:
         ]
         if args.select:
             result["selection"] = bench.selection_scores(result["quality"])
+    if args.stream_quality:
+        result["stream_quality"] = [
+            row
+            for c in corpora
+            for row in bench.streaming_quality(args.stream_quality, c, corruptions, args.clips, args.split)
+        ]
     if not args.skip_bins:
         result["gap_bins"] = [b for c in corpora for b in bench.gap_bins(c, args.clips, args.repeats)]
     if not args.skip_speed:

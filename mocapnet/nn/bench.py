@@ -279,6 +279,15 @@ def markdown(result: dict) -> str:
     if result.get("selection"):
         lines += ["", f"Selection score (mean ratio over {', '.join(SELECTION)}; lowest wins):", ""]
         lines += markdown_table(("method", "score"), ((m, fmt(s)) for m, s in result["selection"].items()))
+    if result.get("stream_quality"):
+        lines += ["", "Streaming cost: mean per-clip RMS error °, windowed mode vs EBFStream (1 repeat):", ""]
+        lines += markdown_table(
+            ("corpus", "split", "corruption", "clips", "windowed °", "EBFStream °"),
+            (
+                (r["corpus"], r["split"], r["corruption"], r["clips"], fmt(r["windowed_deg"]), fmt(r["stream_deg"]))
+                for r in result["stream_quality"]
+            ),
+        )
     if result.get("gap_bins"):
         lines += ["", "EBD gap error per gap length (frames), RMS °:", ""]
         by: dict[tuple, dict] = {}
