@@ -121,16 +121,31 @@ class EBF(CleanerModule):
 
     def apply_params(self, filled: torch.Tensor, params: torch.Tensor, scale: torch.Tensor) -> torch.Tensor:
         """Filter ``filled [B, T, C]`` with the head output ``params [B, T, P]`` → ``[B, T, C]`` degrees, tap by
-        tap (``layers.softmax_filter``: the per-frame kernels ``[B, C, T, K]`` are never formed); ``scale``
+        tap (``layers.softmax_filter``: the filtered samples ``[B, C, T, K]`` are never formed); ``scale``
         (``[C]`` or ``[B, 1, C]`` degrees) is the unit of the bias (``debias``)."""
         half = self.hparams.half
         raw = params[..., : self.n_filter]
         if self.hparams.filter_shape == "gaussian":
             filtered = gaussian_filter(filled, raw.clamp(-5.0, 5.0), half)
         else:
-            k = 2 * half + 1
-            top = raw.unflatten(-1, (-1, k)).amax(-1)  # [B, T, C]
-            filtered = softmax_filter(filled, lambda tap: raw[..., tap + half :: k], half, top)
+            logits = raw.unflatten(-1, (-1, 2 * half + 1)).transpose(-1, -2)  # [B, T, K, C]
+            filtered = softmax_filter(filled, lambda tap: logits[..., tap + half, :], half, logits.amax(-2))
+        return self.debias(filtered, params, scale)
+
+    def apply_hidden(self, filled: torch.Tensor, hidden: torch.Tensor, scale: torch.Tensor) -> torch.Tensor:
+        """``apply_params`` from the input ``hidden [B, T, W]`` of the head's last layer. A free kernel's logits
+        come out tap-major (the layer's rows permuted), so each tap's ``[B, T, C]`` logits are contiguous:
+        reading every K-th value of the channel-major output, tap after tap, was most of the offline time."""
+        last = self.head[-1]
+        if self.hparams.filter_shape == "gaussian":
+            return self.apply_params(filled, last(hidden), scale)
+        half, n_filter = self.hparams.half, self.n_filter
+        k = 2 * half + 1
+        order = torch.arange(n_filter, device=hidden.device).view(-1, k).T.reshape(-1)  # tap-major → head row
+        order = torch.cat([order, torch.arange(n_filter, last.out_features, device=hidden.device)])
+        params = nn.functional.linear(hidden, last.weight[order], last.bias[order])
+        logits = params[..., :n_filter].unflatten(-1, (k, -1))  # [B, T, K, C]
+        filtered = softmax_filter(filled, lambda tap: logits[..., tap + half, :], half, logits.amax(-2))
         return self.debias(filtered, params, scale)
 
     def debias(self, filtered: torch.Tensor, params: torch.Tensor, scale: torch.Tensor) -> torch.Tensor:
@@ -155,7 +170,8 @@ class EBF(CleanerModule):
         ``stats`` (``NORM_KEYS``, ``[B, 1, ·]``) are the clips' statistics for ``norm="clip"`` (default:
         computed over the given frames)."""
         stats = self.input_stats(filled, angvel, stats)
-        return self.apply_params(filled, self.filter_params(filled, angvel, stats), stats["scale"])
+        hidden = self.head[:-1](self.blstm(self.encoder(self.features(filled, angvel, stats))))
+        return self.apply_hidden(filled, hidden, stats["scale"])
 
     def predict_batch(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
         return self(batch["filled"], batch["angvel"], batch if "scale" in batch else None)
@@ -171,5 +187,5 @@ class EBF(CleanerModule):
         (``stats`` ``[1, ·]`` when given)."""
         stats = self.input_stats(filled, angvel, stats)
         codes = self.encoder(self.features(filled, angvel, stats))
-        params = self.head(self.blstm.windowed(codes, self.hparams.half))
-        return self.apply_params(filled[None], params[None], stats["scale"])[0]
+        hidden = self.head[:-1](self.blstm.windowed(codes, self.hparams.half))
+        return self.apply_hidden(filled[None], hidden[None], stats["scale"])[0]
