@@ -129,7 +129,13 @@ def softmax_filter(
     padded = pad_nearest(x, half)
     num = torch.zeros_like(x)
     den = torch.zeros_like(x)
+    in_place = not torch.is_grad_enabled() or not (x.requires_grad or max_logit.requires_grad)
     for k in range(-half, half + 1):
+        if in_place:  # inference: no temporaries beyond the weights of one tap
+            w = torch.sub(tap_logit(k), max_logit).exp_()
+            num.addcmul_(w, padded[:, half + k : half + k + n])
+            den.add_(w)
+            continue
         w = torch.exp(tap_logit(k) - max_logit)
         num = num + w * padded[:, half + k : half + k + n]
         den = den + w
