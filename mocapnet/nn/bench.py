@@ -45,12 +45,14 @@ SPLITS = ("test", "val")
 
 
 def shipped_variants(motion: Motion) -> list[str]:
-    """The EBF-family methods shipped for ``motion``'s skeleton: ``ebf`` and each variant by name."""
+    """The EBF-family methods shipped for ``motion``'s skeleton: ``ebf`` and each other variant by name (the one
+    ``ebf`` runs is not scored twice)."""
     from mocapnet.nn.checkpoints import EBF_VARIANTS, read_index
     from mocapnet.nn.features import topology_hash
 
     mine = topology_hash(motion.skeleton)
-    names = [e["method"] for e in read_index() if e["skeleton_hash"] == mine]
+    entries = [e for e in read_index() if e["skeleton_hash"] == mine]
+    names = {e["method"] for e in entries if not e.get("ebf")}
     return ["ebf"] + [n for n in (*EBF_VARIANTS, "bf", "nn") if n in names]
 
 
