@@ -258,6 +258,8 @@ class _CentreKernel:
         self._cg, self._fi = z[..., : 2 * hid], z[..., 2 * hid : 4 * hid]
         self._layer1 = np.zeros((width, 2, 1, hid), dtype=np.float32)
         self._seq = np.zeros((width, 2, 1, 4 * hid), dtype=np.float32)
+        self._per_frame = np.zeros((width, 2 * hid), dtype=np.float32)  # layer-1 output per frame
+        self._step2 = np.zeros((self.half + 1, 2, 1, 4 * hid), dtype=np.float32)
 
     @staticmethod
     def usable(model: EBF) -> bool:
@@ -309,8 +311,9 @@ class _CentreKernel:
         seq[:, 0] = proj[:, 0]  # step s: forward frame s, backward frame W-1-s
         seq[:, 1] = proj[::-1, 1]
         self._steps(seq, layer1, 0)
-        per_frame = np.concatenate([layer1[:, 0, 0], layer1[::-1, 1, 0]], axis=1)  # [W, 2H]
-        step2 = np.empty((mid + 1, 2, 1, 4 * self.hidden), dtype=np.float32)
+        per_frame, step2, hid = self._per_frame, self._step2, self.hidden
+        per_frame[:, :hid] = layer1[:, 0, 0]
+        per_frame[:, hid:] = layer1[::-1, 1, 0]
         np.matmul(per_frame[: mid + 1], self.wih1_t[0], out=step2[:, 0, 0])
         np.matmul(per_frame[mid:][::-1], self.wih1_t[1], out=step2[:, 1, 0])
         step2 += self.bias[1][:, None, :]
