@@ -128,8 +128,8 @@ def candidates() -> dict:
         "no gate": dataclasses.replace(GAP_BLEND, gate_s=(0.0, 0.0)),
         "lerp base": dataclasses.replace(GAP_BLEND, spline_max_s=0.0),
         "spline <= 0.25 s": dataclasses.replace(GAP_BLEND, spline_max_s=0.25),
-        **{f"check x{f:g}": dataclasses.replace(GAP_BLEND, speed_factor=f) for f in (1.0, 1.5, 3.0)},
-        "check q95": dataclasses.replace(GAP_BLEND, speed_quantile=95.0),
+        **{f"check x{f:g}": dataclasses.replace(GAP_BLEND, speed_factor=f) for f in (1.0, 2.0, 3.0)},
+        "check q99": dataclasses.replace(GAP_BLEND, speed_quantile=99.0),
         "check q100": dataclasses.replace(GAP_BLEND, speed_quantile=100.0),
     }
 
@@ -163,11 +163,18 @@ def tune(repeats: int) -> dict:
         for it in (it for items in filled.values() for it in items):
             del it.outputs[label]
         print(label, f"worst {max(scores[label].values()):.3f}", f"fallbacks {fallbacks[label]}", flush=True)
+    return {"scores": scores, "fallbacks": fallbacks, **choose(scores, fallbacks)}
+
+
+def choose(scores: Mapping[str, Mapping[str, float]], fallbacks: Mapping[str, int]) -> dict[str, str]:
+    """The pre-written rules applied to ``tune``'s scores: the blend geometry by ``select`` among "shipped" and
+    the geometry candidates (all with the shipped self-check); the self-check by the most fallbacks among the
+    "check" candidates and "shipped" whose mean ratio is within 0.5 % of "no check"'s."""
     mean = {k: float(np.mean(list(v.values()))) for k, v in scores.items()}
     checks = [k for k in scores if k.startswith("check") or k == "shipped"]
     check = max((k for k in checks if mean[k] <= 1.005 * mean["no check"]), key=fallbacks.get, default="no check")
-    blends = {k: v for k, v in scores.items() if k not in checks}  # blend geometry, self-check off or shipped
-    return {"scores": scores, "fallbacks": fallbacks, "selected": select(blends), "check": check}
+    geometry = {k: v for k, v in scores.items() if k == "shipped" or k not in (*checks, "no check", "ebd-raw")}
+    return {"selected": select(geometry), "check": check}
 
 
 def test(corpus: str, n_clips: int | None, repeats: int) -> dict:

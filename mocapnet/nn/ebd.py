@@ -103,8 +103,8 @@ class GapBlend:
     spline_max_s: float = 0.5
     gate_s: tuple[float, float] = (1 / 30, 0.2)
     taper_s: float = 0.2
-    speed_quantile: float = 99.0
-    speed_factor: float = 2.0
+    speed_quantile: float = 95.0
+    speed_factor: float = 1.5
 
 
 #: The shipped setting, chosen on bandai2 fold 1 (``scripts/bench_ebd.py --tune``).
