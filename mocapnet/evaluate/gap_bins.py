@@ -1,9 +1,10 @@
 """Gap filling scored gap by gap (issue 11): RMS error per gap-length bin against lerp and spline, and the
 score that chose EBD's blend with interpolation (``mocapnet.nn.ebd.GAP_BLEND``) on bandai2 fold 1.
 
-A gap is one run of missing frames of one scored joint; its error is taken over that joint's scored
-channels (the mask marks whole joints). Clips are corrupted with the protocol's seeds (``corrupt.seed_for``),
-as ``harness.evaluate_angles`` does, so the headline figures here equal the harness's ``gap_err_deg``.
+A gap is one run of missing frames of the scored channels that share one missing pattern (``fill.mask_groups``:
+one joint, or every joint of a segment missing together); its error is taken over those channels. Clips are
+corrupted with the protocol's seeds (``corrupt.seed_for``), as ``harness.evaluate_angles`` does, so the headline
+figures here equal the harness's ``gap_err_deg``.
 """
 
 from __future__ import annotations
