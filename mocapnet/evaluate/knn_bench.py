@@ -304,7 +304,7 @@ def markdown(report: dict) -> str:
         "folds 2-4; for bandai1 all of it). Metrics of PROTOCOL.md; ratios in the overview tables are to lerp, "
         "in the per-corruption tables to the better of lerp and spline (the one reference rule).",
         f"- knn settings (BVH): `{WindowSettings(**ANGLE_DEFAULTS)}`, chosen on bandai2 fold 1 "
-        "(`knn_tuning.md`). C3D knn: the registered default (`search=energy`).",
+        "(`knn_tuning.md`, then `knn_tuning_plateau.md`). C3D knn: the registered default (`search=energy`).",
         "",
         "## Done when (issue 12)",
         "",
