@@ -292,4 +292,6 @@ def parse_frames(text: bytes, n_channels: int, start: int = 0, block_bytes: int 
             return None
         parts.append(part)
         pos = end
+    if not parts:
+        return None
     return parts[0] if len(parts) == 1 else np.concatenate(parts)

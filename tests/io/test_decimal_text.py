@@ -94,6 +94,7 @@ def test_frames_take_either_parser_per_block():
         assert same_bits(parse_frames(text, 5, block_bytes=block), expected), block
     assert parse_fixed_point(text, 5) is None  # the one-block case goes through parse_decimal
     assert parse_frames(text + b"1 2 3 4\n", 5, block_bytes=1000) is None
+    assert parse_frames(b" \n\n", 5) is None and parse_frames(b"", 5) is None
 
 
 def test_bandai1_motion_text_parses_exactly(shared):
