@@ -19,7 +19,7 @@ from pathlib import Path
 from mocapnet.corpus import data_root
 from mocapnet.evaluate import knn_bench
 from mocapnet.evaluate.benchmark import REPO
-from mocapnet.evaluate.report import provenance, write_results
+from mocapnet.evaluate.results import provenance, write_results
 from mocapnet.threads import pin_threads
 
 

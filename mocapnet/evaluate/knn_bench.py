@@ -27,7 +27,8 @@ from mocapnet.corpus import content_label, load_corpus
 from mocapnet.corrupt import Corruption, corrupt_motion, seed_for
 from mocapnet.evaluate.benchmark import gapfill_rigid_body, numpy_int_alias
 from mocapnet.evaluate.harness import Evaluation, evaluate_angles, score_markers, score_motions
-from mocapnet.evaluate.report import fmt, markdown_table, table
+from mocapnet.evaluate.report import table
+from mocapnet.evaluate.results import fmt, markdown_table
 from mocapnet.io.c3d import read_c3d
 from mocapnet.methods import MethodContext, build_method
 from mocapnet.methods.knn_angles import ANGLE_DEFAULTS, fill_angles
