@@ -95,7 +95,7 @@ def _single(method: str):
         mode: str = "sequence",
         limit: float | None = None,
     ):
-        """``limit``: EBF's self-check factor (``infer.limit_change``; default ``infer.EBF_CHANGE_LIMIT``, 0 off)."""
+        """``limit``: EBF's self-check factor (``infer.limit_change``; default: the checkpoint's, 0: off)."""
         from mocapnet.nn.infer import clean_channels
 
         checkpoints = _paths(checkpoints)

@@ -14,7 +14,9 @@ a filter head of ``head_layers`` tanh layers ends in the filter parameters:
 
 ``norm="corpus"`` (default) normalises the inputs with the training set's statistics; ``norm="clip"`` with
 each clip's own (``base.clip_statistics`` of the noisy input), and then the bias is in units of that clip's
-scale too, so the network sees the same relative noise on a clip of any corpus.
+scale too, so the network sees the same relative noise on a clip of any corpus. ``change_limit`` is used at
+inference only: the self-check factor of ``infer.limit_change`` (0: off), chosen on the validation fold and
+stored with the checkpoint.
 
 Departures from the paper, all configurable: hidden size 64 per direction by default (the paper used about
 one unit per channel: 126 for 126 channels; bandai2 has 60 scored channels, CMU 90); PyTorch's default weight
@@ -67,6 +69,7 @@ class EBF(CleanerModule):
         lr_schedule: str = "plateau",
         norm: str = "corpus",
         bias_bound: float = 3.0,
+        change_limit: float = 0.0,
         skeleton_hash: str = "",
         fps: float = 0.0,
         corpus: str = "",
@@ -76,6 +79,8 @@ class EBF(CleanerModule):
             raise ValueError(f"filter_shape must be 'gaussian' or 'free', got {filter_shape!r}")
         if norm not in NORMS:
             raise ValueError(f"norm must be one of {NORMS}, got {norm!r}")
+        if not change_limit >= 0:
+            raise ValueError(f"change_limit must be >= 0, got {change_limit!r}")
         if not bias_bound > 0:
             raise ValueError(f"bias_bound must be positive, got {bias_bound!r}")
         self.save_hyperparameters()

@@ -129,11 +129,6 @@ def predict_sequence(model: CleanerModule, batch: dict[str, torch.Tensor]) -> to
     return out
 
 
-#: EBF's self-check (``limit_change``): each scored channel's RMS change is capped at this many times the noise
-#: level the input shows (``noise_level``); 0 turns it off. Chosen on bandai2 fold 1 (``mocapnet.nn.bench``).
-EBF_CHANGE_LIMIT = 0.0
-
-
 def noise_level(x: np.ndarray) -> np.ndarray:
     """Standard deviation ``[C]`` (degrees) of white noise that ``x [T, C]`` (degrees) shows, from its second
     differences (``6σ²`` for white noise): ``1.4826·MAD / √6``, robust to the motion's own curvature at a few
@@ -174,7 +169,7 @@ def clean_channels(
     missing samples). ``mode``: ``"sequence"`` (in overlapping chunks on long clips, ``predict_sequence``) or
     ``"windowed"`` (module docstring). ``gap_blend``: how EBD's fill is blended with interpolation and
     self-checked (``ebd.blend_gaps``); None keeps the network's fill as it comes. ``change_limit``: EBF's
-    self-check factor (``limit_change``; None: ``EBF_CHANGE_LIMIT``, 0: none).
+    self-check factor (``limit_change``; None: the checkpoint's ``change_limit`` hyper-parameter, 0: none).
     """
     if mode not in MODES:
         raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
@@ -198,7 +193,7 @@ def clean_channels(
         else:
             result[:, idx] = blend_gaps(scored, mask[:, idx], out.numpy(), fps, gap_blend)[0]
     else:
-        limit = EBF_CHANGE_LIMIT if change_limit is None else change_limit
+        limit = float(model.hparams.get("change_limit", 0.0)) if change_limit is None else change_limit
         cleaned = out.numpy().astype(np.float64)
         result[:, idx] = limit_change(result[:, idx], cleaned, limit) if limit > 0 else cleaned
     return result

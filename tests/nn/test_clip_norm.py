@@ -184,3 +184,16 @@ def test_clean_channels_applies_the_self_check_only_when_asked(sample, tiny):
     idx = scored_index(sample.skeleton)
     np.testing.assert_allclose(checked[:, idx], limit_change(clip[:, idx], plain[:, idx], 1.0), atol=1e-9)
     assert np.abs(checked - plain).max() > 1e-3
+
+
+def test_the_checkpoints_change_limit_is_the_default(sample, tiny):
+    clip = sample.channels[:200]
+    no_mask = np.zeros(clip.shape, bool)
+    checked = tiny("ebf-free", sample, change_limit=1.0).eval()
+    plain = tiny("ebf-free", sample).eval()
+    plain.load_state_dict(checked.state_dict())
+    by_default = clean_channels(checked, clip, no_mask, sample.skeleton, sample.fps)
+    asked = clean_channels(plain, clip, no_mask, sample.skeleton, sample.fps, change_limit=1.0)
+    np.testing.assert_allclose(by_default, asked, atol=1e-9)
+    with pytest.raises(ValueError, match="change_limit"):
+        tiny("ebf", sample, change_limit=-1.0)
