@@ -129,27 +129,38 @@ def predict_sequence(model: CleanerModule, batch: dict[str, torch.Tensor]) -> to
     return out
 
 
+#: Columns the self-check handles at a time (its temporaries are ``[T, COLUMN_BLOCK]``: O(T) memory).
+COLUMN_BLOCK = 8
+
+
 def noise_level(x: np.ndarray) -> np.ndarray:
     """Standard deviation ``[C]`` (degrees) of white noise that ``x [T, C]`` (degrees) shows, from its second
     differences (``6σ²`` for white noise): ``1.4826·MAD / √6``, robust to the motion's own curvature at a few
     frames and to spikes; the motion's curvature can only raise it. Zeros for fewer than 3 frames."""
+    out = np.zeros(x.shape[1])
     if len(x) < 3:
-        return np.zeros(x.shape[1])
-    d2 = np.diff(np.unwrap(x, period=360.0, axis=0), n=2, axis=0)
-    mad = np.median(np.abs(d2 - np.median(d2, axis=0)), axis=0)
-    return 1.4826 * mad / np.sqrt(6.0)
+        return out
+    for c in range(0, x.shape[1], COLUMN_BLOCK):
+        d2 = np.diff(np.unwrap(x[:, c : c + COLUMN_BLOCK], period=360.0, axis=0), n=2, axis=0)
+        d2 -= np.median(d2, axis=0)
+        out[c : c + COLUMN_BLOCK] = 1.4826 * np.median(np.abs(d2, out=d2), axis=0) / np.sqrt(6.0)
+    return out
 
 
 def limit_change(noisy: np.ndarray, cleaned: np.ndarray, factor: float) -> np.ndarray:
     """The self-check: ``cleaned [T, C]`` moved back toward ``noisy [T, C]`` (degrees) on each channel whose RMS
     change exceeds ``factor`` × its ``noise_level``, so that it changes by exactly that much. A denoiser has no
     business changing a channel by much more than the noise it shows (on nearly clean input a learned filter
-    otherwise smooths away real motion)."""
-    change = (cleaned - noisy + 180.0) % 360.0 - 180.0
-    rms = np.sqrt(np.mean(change**2, axis=0))
+    otherwise smooths away real motion). Returns a new array; works ``COLUMN_BLOCK`` columns at a time."""
     cap = factor * noise_level(noisy)
-    shrink = np.where(rms > cap, cap / np.maximum(rms, 1e-12), 1.0)
-    return noisy + change * shrink
+    out = np.empty(np.broadcast_shapes(noisy.shape, cleaned.shape))
+    for c in range(0, out.shape[1], COLUMN_BLOCK):
+        cols = slice(c, c + COLUMN_BLOCK)
+        change = (cleaned[:, cols] - noisy[:, cols] + 180.0) % 360.0 - 180.0
+        rms = np.sqrt(np.mean(change**2, axis=0))
+        change *= np.where(rms > cap[cols], cap[cols] / np.maximum(rms, 1e-12), 1.0)
+        out[:, cols] = noisy[:, cols] + change
+    return out
 
 
 @torch.inference_mode()
