@@ -1,5 +1,5 @@
 """Benchmark the learned cleaners (EBF variants, EBD) against the baselines, across corpora, and their speed
-(the logic is ``mocapnet.nn.bench``; this is its command line).
+(the logic is ``mocapnet.evaluate.neural_bench``; this is its command line).
 
     python scripts/bench_neural.py                                   # writes benchmarks/results/neural.{json,md}
     python scripts/bench_neural.py --clips 60 --repeats 2            # a subset of test clips (stated in the output)
@@ -13,9 +13,9 @@ from __future__ import annotations
 import argparse
 import os
 
+from mocapnet.evaluate import neural_bench as bench
 from mocapnet.evaluate.report import provenance, write_json
 from mocapnet.io.atomic import atomic_output
-from mocapnet.nn import bench
 from mocapnet.threads import pin_threads
 
 

@@ -1,5 +1,5 @@
-"""The learned-cleaner benchmark's bookkeeping (mocapnet.nn.bench, scripts/bench_neural.py): the selection
-rule, the results file, and that bandai1 cannot be used for selection."""
+"""The learned-cleaner benchmark's bookkeeping (mocapnet.evaluate.neural_bench, scripts/bench_neural.py): the
+selection rule, the results file, and that bandai1 cannot be used for selection."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from mocapnet.nn import bench
+from mocapnet.evaluate import neural_bench as bench
 
 SCRIPT = Path(__file__).resolve().parents[2] / "scripts" / "bench_neural.py"
 

@@ -9,8 +9,8 @@ bandai1 is test only). Scoring is ``harness.evaluate_angles`` and each row ``rep
 gaps; lerp+gaussian-58ms for noise+gaps). EBD is also scored per gap-length bin against lerp and spline.
 
 Speed (1 torch/BLAS thread): offline cleaning of a 10,000-frame clip, peak memory of a 300,000-frame clean
-(``clean_channels``, in a child process: ``python -m mocapnet.nn.bench METHOD``), and the CPU time of
-``EBFStream.push`` per frame.
+(``clean_channels``, in a child process: ``python -m mocapnet.evaluate.neural_bench METHOD``), and the CPU
+time of ``EBFStream.push`` per frame.
 """
 
 from __future__ import annotations
@@ -241,7 +241,7 @@ def streaming_quality(
 
 def rss_child(method: str) -> dict:
     """Peak RSS (MB) of a fresh process cleaning 300,000 frames with ``method`` (``rss_run``)."""
-    cmd = [sys.executable, "-m", "mocapnet.nn.bench", method]
+    cmd = [sys.executable, "-m", "mocapnet.evaluate.neural_bench", method]
     return json.loads(subprocess.run(cmd, capture_output=True, text=True, check=True).stdout.splitlines()[-1])
 
 
