@@ -27,10 +27,10 @@ import numpy as np
 import mocapnet.methods.neural  # noqa: F401  (registers the EBF variant names)
 from mocapnet.corpus import load_corpus
 from mocapnet.corrupt import ANGLE_CORRUPTIONS, corrupt_motion, seed_for
+from mocapnet.evaluate import gap_bins as gap_bins_module
 from mocapnet.evaluate.harness import Evaluation, corpus_references, evaluate_angles, has_gaps
-from mocapnet.evaluate.metrics import angle_err_deg, wrapped_diff
+from mocapnet.evaluate.metrics import angle_err_deg
 from mocapnet.evaluate.report import fmt, markdown_table, summarize
-from mocapnet.fill import runs
 from mocapnet.methods.registry import build_method
 from mocapnet.motion import Motion
 from mocapnet.threads import pin_threads
@@ -38,9 +38,6 @@ from mocapnet.threads import pin_threads
 CORRUPTIONS = [c for c in ANGLE_CORRUPTIONS if c != "none"] + ["segment-gap:left-arm:0.5", "segment-gap:left-arm:2"]
 #: The corruptions and rule that choose the shipped ``ebf`` among candidates (fold 1 only): mean ratio.
 SELECTION = ("angular-0.1", "angular-0.5", "angular-0.9", "spatial-0.5cm", "uniform-0.5", "bias-sine")
-GAP_BINS = ((1, 5), (6, 15), (16, 30), (31, 60), (61, 10**9))  # frames, inclusive
-BIN_LABELS = ("≤ 5", "6–15", "16–30", "31–60", "> 60")
-BIN_CORRUPTIONS = ("gaps", "gaps-long", "segment-gap:left-arm:0.5", "segment-gap:left-arm:2")
 SPLITS = ("test", "val")
 
 
@@ -117,38 +114,19 @@ def selection_scores(rows: Sequence[dict], corruptions: Sequence[str] = SELECTIO
 
 
 def gap_bins(name: str, n_clips: int | None, repeats: int) -> list[dict]:
-    """RMS gap error (degrees) per gap-length bin of EBD, lerp and spline on fold-0 test clips; a gap is one
-    run of missing frames of one scored joint, its error taken over that joint's scored channels."""
+    """RMS gap error (degrees) per gap-length bin of EBD, lerp and spline on fold-0 test clips, as
+    ``mocapnet.evaluate.gap_bins`` scores them (a gap: one run of missing frames of the scored channels that
+    share a missing pattern), one row per corpus, corruption, method and bin."""
     _, clips, _ = split_clips(name, "test", n_clips)
-    methods = {m: build_method(m).clean for m in ("lerp", "spline", "ebd")}
+    methods = ("lerp", "spline", "ebd")
+    fillers = {m: build_method(m).clean for m in methods}
     out = []
-    for corruption in BIN_CORRUPTIONS:
-        sse = np.zeros((len(methods), len(GAP_BINS)))
-        count = np.zeros(len(GAP_BINS))
-        gaps = np.zeros(len(GAP_BINS), dtype=int)
-        for motion in clips:
-            sk = motion.skeleton
-            scored = np.flatnonzero(sk.scored_mask)
-            cols_of = [c for c in (np.intersect1d(sk.joint_channels(j), scored) for j in sk.scored_joints) if c.size]
-            for rep in range(repeats):
-                rng = np.random.default_rng(seed_for(name, motion.name, rep, corruption))
-                try:
-                    noisy, mask = corrupt_motion(motion, corruption, rng)
-                except ValueError:
-                    break
-                outs = [clean(motion.with_channels(noisy), mask) for clean in methods.values()]
-                for cols in cols_of:
-                    for a, b in runs(mask[:, cols[0]]):
-                        k = next(i for i, (lo, hi) in enumerate(GAP_BINS) if lo <= b - a <= hi)
-                        gaps[k] += 1
-                        count[k] += (b - a) * len(cols)
-                        for m, o in enumerate(outs):
-                            sse[m, k] += float((wrapped_diff(o[a:b, cols], motion.channels[a:b, cols]) ** 2).sum())
-        for m, method in enumerate(methods):
-            for k in range(len(GAP_BINS)):
-                rms = float(np.sqrt(sse[m, k] / count[k])) if count[k] else float("nan")
-                row = {"corpus": name, "corruption": corruption, "method": method, "bin": BIN_LABELS[k]}
-                out.append({**row, "gaps": int(gaps[k]), "rms_deg": rms})
+    for corruption in gap_bins_module.TEST:
+        filled = gap_bins_module.fill_clips(name, clips, corruption, repeats, fillers)
+        for row in gap_bins_module.bin_errors(filled, methods):
+            for method in methods:
+                head = {"corpus": name, "corruption": corruption, "method": method, "bin": row["bin"]}
+                out.append({**head, "gaps": row["gaps"], "rms_deg": row[method]})
         print(f"bins {name} {corruption}: {len(clips)} clips x {repeats}", flush=True)
     return out
 

@@ -31,6 +31,7 @@ from mocapnet.io.atomic import MocapFileError
 from mocapnet.nn.base import CleanerModule
 from mocapnet.nn.checkpoints import read_checkpoint
 from mocapnet.nn.data import MotionDataModule
+from mocapnet.threads import pin_threads
 
 CONF_DIR = Path(__file__).resolve().parents[1] / "conf"
 
@@ -62,9 +63,10 @@ def main(overrides: Sequence[str]) -> Path:
 
 def configure_torch(threads: int | None) -> None:
     """CPU settings for training and inference: thread count and flush-to-zero for denormals (tanh/LSTM
-    gradients otherwise slow the CPU down by hitting denormal arithmetic)."""
+    gradients otherwise slow the CPU down by hitting denormal arithmetic). ``threads`` pins torch and BLAS
+    together through ``mocapnet.threads.pin_threads``; None leaves the libraries' defaults."""
     if threads:
-        torch.set_num_threads(int(threads))
+        pin_threads(int(threads))
     torch.set_flush_denormal(True)
 
 
