@@ -1,6 +1,6 @@
 """Benchmark of the data-driven gap filler ``knn`` against lerp, spline, PCA and ``gapfill`` (issue 12): BVH
 (bandai2 and bandai1 fold 0, database bandai2), C3D whole-segment gaps, fill time per second of gap; the
-work is in ``mocapnet.evaluate.knn_bench``. Writes ``benchmarks/results/knn.md`` and ``knn.json``;
+work is in ``mocapnet.evaluate.knn_bench``. Writes ``benchmarks/results/knn.md`` and ``knn.json.gz``;
 ``--tune`` scores setting variations on bandai2 fold 1 only and writes ``knn_tuning.md`` / ``.json``
 (``--grid plateau``: the third round, ``knn_tuning_plateau.md``).
 
@@ -45,12 +45,12 @@ def main(argv: list[str] | None = None) -> int:
         rows = knn_bench.tune(min(args.clips, 20), knn_bench.GRIDS[args.grid])
         report.update(rows=rows, wall_s=time.time() - started)
         stem = "knn_tuning" + ("" if args.grid == "main" else f"_{args.grid}")
-        write_results(args.out / stem, report, knn_bench.tune_markdown(rows, report))
+        write_results(args.out / stem, report, knn_bench.tune_markdown(rows, report), json_suffix=".json.gz")
         return 0
     report.update(n_clips=args.clips, repeats=args.repeats, speed=knn_bench.bench_speed(10))
     report.update(bvh=knn_bench.bench_bvh(args.clips, args.repeats), c3d=knn_bench.bench_c3d(root, args.repeats))
     report["wall_s"] = time.time() - started
-    write_results(args.out / "knn", report, knn_bench.markdown(report))
+    write_results(args.out / "knn", report, knn_bench.markdown(report), json_suffix=".json.gz")
     return 0
 
 
