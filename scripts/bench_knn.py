@@ -1,7 +1,7 @@
 """Benchmark of the data-driven gap filler ``knn`` against lerp, spline, PCA and ``gapfill`` (issue 12): BVH
 (bandai2 and bandai1 fold 0, database bandai2), C3D whole-segment gaps, fill time per second of gap; the
 work is in ``mocapnet.evaluate.knn_bench``. Writes ``benchmarks/results/knn.md`` and ``knn.json.gz``;
-``--tune`` scores setting variations on bandai2 fold 1 only and writes ``knn_tuning.md`` / ``.json``
+``--tune`` scores setting variations on bandai2 fold 1 only and writes ``knn_tuning.md`` / ``.json.gz``
 (``--grid plateau``: the third round, ``knn_tuning_plateau.md``).
 
     nice -n 5 .venv/bin/python scripts/bench_knn.py --tune     # bandai2 fold 1 only
