@@ -234,8 +234,8 @@ class _Candidates:
             labels = [self.markers.labels[p] for p in got.partners]
             return got.points, {"partners": labels, "fit_residual_cm": round(got.residual_cm, 3)}
         if name == "pca":
-            rigid_opts = {k: v for k, v in self.rigid_options.items() if k == "max_std_cm"}
-            if not len(rigid_partners(self.visible, self.spread(), marker, start, stop, **rigid_opts)):
+            max_std_cm = self.rigid_options["max_std_cm"]
+            if not len(rigid_partners(self.visible, self.spread(), marker, start, stop, max_std_cm=max_std_cm)):
                 return None, {"reason": "no marker rigid with it stays in view (its segment is missing)"}
         fill = self.whole(name)[start:stop, marker]
         if not np.isfinite(fill).all():

@@ -926,13 +926,14 @@ def _knn(
     else the take's own frames. ``own``: the take's own fully observed frames join a given database too.
     ``clean.database`` says which. ``search="energy"`` (default): the paper's ``fill_gaps``, blended with
     ``base`` interpolation by ``blend_points``, samples it leaves NaN filled linearly with a warning;
-    ``"window"``: ``knn_window.fill_markers`` (options ``margin_s``, ``near_gain``, ``query_hz``,
+    ``"window"``: ``fill_markers`` (options ``margin_s``, ``near_gain``, ``query_hz``,
     ``distance_gain`` of ``WindowSettings``). ``speed`` in cm/s (None: no blend). Defaults (energy, k 16,
     speed 150 cm/s, own) were chosen on the Plug-in-Gait tennis serve (database: the pyCGM trial), not on
     the 41-marker set the benchmark reports."""
     if search not in ("window", "energy"):
         raise ValueError(f"knn: search must be window or energy, got {search!r}")
     settings = WindowSettings(k=k, speed=speed, offset=offset, own=own, **window)
+    levels = 1 if search == "window" else levels  # the window search reads only the finest level
     fixed: MotionDatabase | None = None
     clips: list[Markers] = []
     if database is not None:

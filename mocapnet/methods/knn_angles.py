@@ -174,9 +174,7 @@ def fill_angles(
 
     Raises ValueError naming the motion when its skeleton does not match the database's."""
     t_start = time.process_time()
-    settings = settings or WindowSettings(**ANGLE_DEFAULTS)
-    if settings.fallback not in ("lerp", "pca"):
-        raise ValueError(f"knn: fallback must be lerp or pca, got {settings.fallback!r}")
+    settings = settings or WindowSettings(**ANGLE_DEFAULTS)  # validated by WindowSettings.__post_init__
     sk = motion.skeleton
     db.check(sk, motion.name)
     searcher = searcher or Searcher(db.points, db.clip, db.describe())
@@ -188,7 +186,8 @@ def fill_angles(
     if not smask.any():
         return out, stats
     joint_missing = np.stack([mask[:, sk.joint_channels(j)].any(axis=1) for j in range(sk.n_joints)], axis=1)
-    weights = points_visible(sk, joint_missing).astype(np.float32)
+    visible = points_visible(sk, joint_missing)
+    weights = visible.astype(np.float32)
     feats = db.reference.points(sk, base, motion.fps, motion.name)
     skip = set(exclude) | {motion.name, motion.name.split("#")[0]}  # "clip#test": a time split of "clip"
     allowed = np.array([n not in skip for n in db.names])[db.clip]
@@ -197,7 +196,7 @@ def fill_angles(
     seconds = edge_seconds(mask, motion.fps)
     n_t = motion.n_frames
     complete = ~smask.any(axis=1)
-    anchor = pca_angles(motion, mask, base, points_visible(sk, joint_missing)) if settings.fallback == "pca" else base
+    anchor = pca_angles(motion, mask, base, visible) if settings.fallback == "pca" else base
     own = Searcher(feats, np.zeros(n_t, dtype=int), f"{motion.name} itself") if settings.own else None
     for a, b in runs(smask.any(axis=1)):
         stats.gaps += 1

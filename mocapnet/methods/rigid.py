@@ -86,12 +86,11 @@ def kabsch(source: np.ndarray, target: np.ndarray, weights: np.ndarray | None = 
 @dataclass(frozen=True)
 class RigidFill:
     """A rigid-body fill of one gap: ``points [b - a, 3]`` cm, the partner markers used, the RMS fit
-    residual of the partners over the gap (cm) and how many measured edges (1 or 2) it was carried from."""
+    residual of the partners over the gap (cm)."""
 
     points: np.ndarray
     partners: tuple[int, ...]
     residual_cm: float
-    edges: int
 
 
 def measured_edges(visible: np.ndarray, marker: int, start: int, stop: int) -> list[int]:
@@ -193,7 +192,7 @@ def rigid_fill_gap(
         track, deviation = got
         residual = float(np.sqrt(np.mean(deviation**2)))
         if residual <= max_residual_cm or len(partners) == min_partners:
-            return RigidFill(track, tuple(int(p) for p in partners), residual, len(edges))
+            return RigidFill(track, tuple(int(p) for p in partners), residual)
         partners = np.delete(partners, int(np.argmax(deviation)))
     return None
 
