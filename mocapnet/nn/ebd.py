@@ -155,9 +155,9 @@ def blend_gaps(
     computed here."""
     out = np.where(mask, np.nan, channels).astype(np.float64)
     spline_max = blend.spline_max_s * fps
-    groups = mask_groups(mask)
+    gaps = [(cols, a, b) for cols in mask_groups(mask).values() for a, b in runs(mask[:, cols[0]])]
     if interpolated is None:
-        short = any(b - a <= spline_max for cols in groups.values() for a, b in runs(mask[:, cols[0]]))
+        short = any(b - a <= spline_max for _, a, b in gaps)
         lerp = lerp_fill(out, mask)
         interpolated = lerp, spline_fill(out, mask) if short else lerp
     lerp, spline = interpolated
@@ -165,22 +165,21 @@ def blend_gaps(
     speed = channel_speed(out, mask, blend.speed_quantile) * blend.speed_factor if check else None
     lo, hi, taper = blend.gate_s[0] * fps, blend.gate_s[1] * fps, max(blend.taper_s * fps, 1.0)
     fallbacks = 0
-    for cols in groups.values():
-        for a, b in runs(mask[:, cols[0]]):
-            length = b - a
-            base = (spline if length <= spline_max else lerp)[a:b][:, cols]
-            if np.isnan(base).any():  # no observed sample in these channels: only the network has a value
-                out[a:b, cols] = net[a:b, cols]
-                continue
-            gate = float(np.clip((length - lo) / max(hi - lo, 1e-9), 0.0, 1.0))
-            t = np.arange(a, b)
-            edge = np.minimum(t - a if a > 0 else np.inf, b - 1 - t if b < len(out) else np.inf)
-            weight = gate * np.minimum(1.0, (np.minimum(edge, taper) + 1.0) / taper)[:, None]
-            fill = base + weight * (wrap_near(net[a:b][:, cols], base) - base)
-            if check and (
-                _cone_excess(fill, out[:, cols], a, b, speed[cols])
-                > max(_cone_excess(base, out[:, cols], a, b, speed[cols]), 0.0) + 1e-6
-            ):
-                fill, fallbacks = base, fallbacks + 1
-            out[a:b, cols] = fill
+    for cols, a, b in gaps:
+        length = b - a
+        base = (spline if length <= spline_max else lerp)[a:b][:, cols]
+        if np.isnan(base).any():  # no observed sample in these channels: only the network has a value
+            out[a:b, cols] = net[a:b, cols]
+            continue
+        gate = float(np.clip((length - lo) / max(hi - lo, 1e-9), 0.0, 1.0))
+        t = np.arange(a, b)
+        edge = np.minimum(t - a if a > 0 else np.inf, b - 1 - t if b < len(out) else np.inf)
+        weight = gate * np.minimum(1.0, (np.minimum(edge, taper) + 1.0) / taper)[:, None]
+        fill = base + weight * (wrap_near(net[a:b][:, cols], base) - base)
+        if check and (
+            _cone_excess(fill, out[:, cols], a, b, speed[cols])
+            > max(_cone_excess(base, out[:, cols], a, b, speed[cols]), 0.0) + 1e-6
+        ):
+            fill, fallbacks = base, fallbacks + 1
+        out[a:b, cols] = fill
     return out, fallbacks

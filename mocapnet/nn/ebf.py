@@ -124,27 +124,18 @@ class EBF(CleanerModule):
         """Gaussian σ ``[B, T, C]`` in frames (gaussian filter only)."""
         return params[..., : self.n_filter].clamp(-5.0, 5.0).exp()
 
-    def apply_params(self, filled: torch.Tensor, params: torch.Tensor, scale: torch.Tensor) -> torch.Tensor:
-        """Filter ``filled [B, T, C]`` with the head output ``params [B, T, P]`` → ``[B, T, C]`` degrees, tap by
-        tap (``layers.softmax_filter``: the filtered samples ``[B, C, T, K]`` are never formed); ``scale``
-        (``[C]`` or ``[B, 1, C]`` degrees) is the unit of the bias (``debias``)."""
-        half = self.hparams.half
-        raw = params[..., : self.n_filter]
-        if self.hparams.filter_shape == "gaussian":
-            filtered = gaussian_filter(filled, raw.clamp(-5.0, 5.0), half)
-        else:
-            logits = raw.unflatten(-1, (-1, 2 * half + 1)).transpose(-1, -2)  # [B, T, K, C]
-            filtered = softmax_filter(filled, lambda tap: logits[..., tap + half, :], half, logits.amax(-2))
-        return self.debias(filtered, params, scale)
-
     def apply_hidden(self, filled: torch.Tensor, hidden: torch.Tensor, scale: torch.Tensor) -> torch.Tensor:
-        """``apply_params`` from the input ``hidden [B, T, W]`` of the head's last layer. A free kernel's logits
-        come out tap-major (the layer's rows permuted), so each tap's ``[B, T, C]`` logits are contiguous:
-        reading every K-th value of the channel-major output, tap after tap, was most of the offline time."""
+        """Filter ``filled [B, T, C]`` with the head output computed from ``hidden [B, T, W]``, the input of the
+        head's last layer → ``[B, T, C]`` degrees, tap by tap (``layers.gaussian_filter`` / ``softmax_filter``:
+        the filtered samples ``[B, C, T, K]`` are never formed); ``scale`` (``[C]`` or ``[B, 1, C]`` degrees) is
+        the unit of the bias (``debias``). A free kernel's logits come out tap-major (the layer's rows
+        permuted), so each tap's ``[B, T, C]`` logits are contiguous: reading every K-th value of the
+        channel-major output, tap after tap, was most of the offline time."""
         last = self.head[-1]
-        if self.hparams.filter_shape == "gaussian":
-            return self.apply_params(filled, last(hidden), scale)
         half, n_filter = self.hparams.half, self.n_filter
+        if self.hparams.filter_shape == "gaussian":
+            params = last(hidden)
+            return self.debias(gaussian_filter(filled, params[..., :n_filter].clamp(-5.0, 5.0), half), params, scale)
         k = 2 * half + 1
         order = torch.arange(n_filter, device=hidden.device).view(-1, k).T.reshape(-1)  # tap-major → head row
         order = torch.cat([order, torch.arange(n_filter, last.out_features, device=hidden.device)])
