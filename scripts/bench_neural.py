@@ -14,8 +14,7 @@ import argparse
 import os
 
 from mocapnet.evaluate import neural_bench as bench
-from mocapnet.evaluate.report import provenance, write_json
-from mocapnet.io.atomic import atomic_output
+from mocapnet.evaluate.results import provenance, write_results
 from mocapnet.threads import pin_threads
 
 
@@ -73,11 +72,7 @@ def main(argv: list[str] | None = None) -> None:
         result["gap_bins"] = [b for c in corpora for b in bench.gap_bins(c, args.clips, args.repeats)]
     if not args.skip_speed:
         result["speed"] = bench.speed(bench.shipped_variants(bench.long_clip(100)), args.timing_repeats)
-    os.makedirs(os.path.dirname(args.out) or ".", exist_ok=True)
-    write_json(args.out + ".json", result, indent=1)
-    with atomic_output(args.out + ".md") as tmp:
-        tmp.write_text(bench.markdown(result))
-    print(bench.markdown(result))
+    write_results(args.out, result, bench.markdown(result), indent=1)
 
 
 if __name__ == "__main__":

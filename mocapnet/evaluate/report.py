@@ -12,11 +12,6 @@ import numpy as np
 
 from mocapnet.evaluate.harness import ROW_FIELDS, Evaluation, reference
 from mocapnet.evaluate.results import fmt, markdown_table, text_output
-from mocapnet.evaluate.results import provenance as provenance  # re-exported: the benchmarks import them from here
-from mocapnet.evaluate.results import read_json as read_json
-from mocapnet.evaluate.results import rounded as rounded
-from mocapnet.evaluate.results import write_json as write_json
-from mocapnet.evaluate.results import write_results as write_results
 from mocapnet.io.atomic import atomic_output
 from mocapnet.methods.registry import MethodSpec
 
