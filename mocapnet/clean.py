@@ -171,16 +171,8 @@ def clean_c3d_file(src: Path, out: Path, options: CleanOptions) -> CleanResult:
         + (f"; {left} gaps wholly or partly left missing (no plausible fill)" if left else "")
         + (f"; knn database: {built.clean.database}" if name == "knn" else "")
         + (f"; {empty} markers with no data at all left empty" if empty else ""),
-        {"gaps": gaps, "file_first_frame": _file_first_frame(src)},
+        {"gaps": gaps, "file_first_frame": markers.first_frame},
     )  # fmt: skip
-
-
-def _file_first_frame(src: Path) -> int:
-    """The file's number for its first frame (C3D header word 4; Vicon trials often start well above 1).
-    Gap reports count take frames from 0; add this to get the frame a lab sees in Nexus or Mokka."""
-    from mocapnet.io.c3d_raw import read_layout
-
-    return int(read_layout(src).first_frame)
 
 
 def clean_file(src: str | os.PathLike, out: str | os.PathLike, options: CleanOptions) -> CleanResult:

@@ -41,10 +41,12 @@ READERS = ("ezc3d", "c3d")
 class C3DMarkers(Markers):
     """``Markers`` read from a C3D file; ``reader`` says what read it: ``"ezc3d"``, or ``"c3d"`` (the PyPI
     package, for the files ezc3d refuses); ``point_index [M]`` is each marker's point index in the file
-    (kept by ``select``), which tells apart markers that share a label."""
+    (kept by ``select``), which tells apart markers that share a label; ``first_frame`` is the file's number
+    for its first frame (header word 4; Vicon trials often start well above 1)."""
 
     reader: str = ""
     point_index: tuple[int, ...] = ()
+    first_frame: int = 1
 
     def select(self, indices: np.ndarray | list[int]) -> C3DMarkers:
         """The markers ``indices``, keeping each one's point index in the file."""
@@ -226,7 +228,10 @@ def read_c3d(path: str | os.PathLike, markers_only: bool = True, *, allow_trunca
         )
     xyz = content.xyz[:, keep] * _UNIT_TO_CM[content.units]
     labels = [content.labels[i] for i in keep]
-    return C3DMarkers(xyz, visible, labels, content.rate, path.name, content.reader, tuple(int(i) for i in keep))
+    return C3DMarkers(
+        xyz, visible, labels, content.rate, path.name, content.reader, tuple(int(i) for i in keep),
+        int(content.layout.first_frame),
+    )  # fmt: skip
 
 
 def _match_columns(content: C3DContent, markers: Markers) -> np.ndarray:
