@@ -92,6 +92,7 @@ from mocapnet.methods.knn_window import (
 )
 from mocapnet.methods.pca import fill_remaining_linear  # importing pca also registers the "pca" method
 from mocapnet.methods.registry import MethodContext, register
+from mocapnet.methods.rigid import kabsch
 from mocapnet.motion import Markers, Motion
 
 # Reliable markers of the paper's Table 1 (CMU/HDM05 41-marker set): the ``reliable=paper`` preset.
@@ -605,7 +606,7 @@ def fill_gaps(
         leaves nothing out (the take is its own database).
     cluster : with ``n >= 3``, the missing points of every neighbour are expressed relative to the nearest
         visible rigid cluster: the ``n`` feature points nearest the gap's unknown points (in the neighbours'
-        poses). Each neighbour pose's cluster is fitted to the query frame's (``rigid_fit``: rotation and
+        poses). Each neighbour pose's cluster is fitted to the query frame's (``rigid.kabsch``: rotation and
         translation, least squares) and its unknown points (velocities, accelerations: rotation only) move
         with it, so a neighbour with the trunk bent otherwise still places the arm right on the trunk.
         0 (default): body frame only.
@@ -762,7 +763,7 @@ class _Gap:
         order = np.argsort(np.linalg.norm(nearest[:, f_cols] - centre, axis=-1).mean(axis=0))[:n]
         src = positions[hits[..., None], f_cols[order]]  # [q, k, n, 3]
         dst = np.broadcast_to(self.local[asked][:, self.features[order]][:, None], src.shape)
-        rot, shift = rigid_fit(src, dst)
+        rot, shift = kabsch(src, dst)
         return [
             np.einsum("qkij,qkuj->qkui", rot, x) + (shift[:, :, None] if i == 0 else 0.0) for i, x in enumerate(near)
         ]
@@ -778,19 +779,6 @@ class _Gap:
         before, after = np.nan_to_num(before), np.nan_to_num(after)
         slope = (after - before) / (b - a + 1)
         return before + slope * (frames - (a - 1))[:, None, None], slope
-
-
-def rigid_fit(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Least-squares rotation ``R [..., 3, 3]`` and translation ``t [..., 3]`` with ``R src + t ≈ dst`` for point
-    sets ``src, dst [..., n, 3]`` (Kabsch, no reflection)."""
-    cs, cd = src.mean(axis=-2, keepdims=True), dst.mean(axis=-2, keepdims=True)
-    h = np.swapaxes(src - cs, -1, -2) @ (dst - cd)  # [..., 3, 3]
-    u, _, vt = np.linalg.svd(h)
-    d = np.sign(np.linalg.det(np.swapaxes(vt, -1, -2) @ np.swapaxes(u, -1, -2)))
-    fix = np.ones(h.shape[:-1])
-    fix[..., 2] = np.where(d == 0, 1.0, d)
-    rot = np.swapaxes(vt, -1, -2) @ (fix[..., :, None] * np.swapaxes(u, -1, -2))
-    return rot, (cd - np.einsum("...ij,...nj->...ni", rot, cs))[..., 0, :]
 
 
 def _resample(frames_c: np.ndarray, values: np.ndarray, frames: np.ndarray) -> np.ndarray:

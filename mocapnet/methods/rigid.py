@@ -66,21 +66,21 @@ def distance_spread(points: np.ndarray, visible: np.ndarray) -> np.ndarray:
 
 
 def kabsch(source: np.ndarray, target: np.ndarray, weights: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Rotations ``[L, 3, 3]`` and translations ``[L, 3]`` minimising ``Σ_k w_k |R s_k + d - t_k|²`` from one
-    point set ``source [K, 3]`` to each of ``target [L, K, 3]`` (proper rotations: reflections excluded;
-    ``weights [K]`` default equal)."""
-    w = np.ones(len(source)) if weights is None else np.asarray(weights, dtype=np.float64)
+    """Rotations ``[..., 3, 3]`` and translations ``[..., 3]`` minimising ``Σ_k w_k |R s_k + d - t_k|²`` from
+    point sets ``source [..., K, 3]`` to ``target [..., K, 3]`` (the leading axes broadcast: one source to many
+    targets, or one pair per entry; proper rotations: reflections excluded; ``weights [K]`` default equal)."""
+    w = np.ones(source.shape[-2]) if weights is None else np.asarray(weights, dtype=np.float64)
     w = w / w.sum()
-    src_c = w @ source
-    tgt_c = np.einsum("k,lkj->lj", w, target)
-    h = np.einsum("k,ki,lkj->lij", w, source - src_c, target - tgt_c[:, None])  # [L, 3, 3]
+    src_c = np.einsum("k,...ki->...i", w, source)
+    tgt_c = np.einsum("k,...ki->...i", w, target)
+    h = np.einsum("k,...ki,...kj->...ij", w, source - src_c[..., None, :], target - tgt_c[..., None, :])
     u, _, vt = np.linalg.svd(h)
-    d = np.sign(np.linalg.det(np.einsum("lji,lkj->lik", vt, u)))
-    d[d == 0] = 1.0
-    fix = np.ones((len(h), 3))
-    fix[:, 2] = d
-    rot = np.einsum("lji,lj,lkj->lik", vt, fix, u)  # V diag(1, 1, d) Uᵀ
-    return rot, tgt_c - np.einsum("lij,j->li", rot, src_c)
+    v, ut = np.swapaxes(vt, -1, -2), np.swapaxes(u, -1, -2)
+    d = np.sign(np.linalg.det(v @ ut))
+    fix = np.ones(h.shape[:-1])
+    fix[..., 2] = np.where(d == 0, 1.0, d)
+    rot = v @ (fix[..., :, None] * ut)  # V diag(1, 1, d) Uᵀ
+    return rot, tgt_c - np.einsum("...ij,...j->...i", rot, src_c)
 
 
 @dataclass(frozen=True)

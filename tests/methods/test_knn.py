@@ -28,13 +28,13 @@ from mocapnet.methods.knn import (
     fill_gaps,
     fill_markers,
     normalise,
-    rigid_fit,
     upsample,
 )
 from mocapnet.methods.knn_angles import fill_angles, limb_rms, wrap
 from mocapnet.methods.knn_database import SkeletonDatabase, cached_database, default_corpus
 from mocapnet.methods.knn_window import Searcher, WindowSettings, fill_run
 from mocapnet.methods.pca import pca_fill
+from mocapnet.methods.rigid import kabsch
 from mocapnet.motion import Markers, Motion
 
 SHARED = Path(os.environ.get("MOCAPNET_DATA", Path(__file__).parents[2].parent / "shared" / "data"))
@@ -423,13 +423,13 @@ def test_max_weight_caps_the_knn_share_and_bad_settings_are_refused() -> None:
             WindowSettings(**bad)
 
 
-def test_rigid_fit_recovers_a_rotation_and_cluster_fill_stays_exact(walk, database) -> None:
+def test_kabsch_per_pair_recovers_a_rotation_and_cluster_fill_stays_exact(walk, database) -> None:
     rng = np.random.default_rng(5)
     src = rng.normal(size=(2, 5, 3)) * 10.0
     q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
     rot = q * np.sign(np.linalg.det(q))  # a proper rotation
     dst = src @ rot.T + np.array([1.0, -2.0, 3.0])
-    got_rot, got_shift = rigid_fit(src, dst)
+    got_rot, got_shift = kabsch(src, dst)
     assert np.allclose(got_rot, rot) and np.allclose(got_shift, [1.0, -2.0, 3.0])
     noisy = corrupt_markers(walk, "segment-gap:left-arm:1", np.random.default_rng(3))
     out, _ = fill_gaps(noisy, database, k=4, cluster=4)
