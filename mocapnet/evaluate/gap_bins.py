@@ -44,6 +44,11 @@ class FilledClip:
     outputs: dict[str, np.ndarray] = field(default_factory=dict)
 
 
+def subset(clips: list[Motion], n: int | None) -> list[Motion]:
+    """``n`` clips evenly spaced over ``clips`` (the fold's order is stratified by content), or all."""
+    return clips if not n or n >= len(clips) else clips[:: len(clips) // n][:n]
+
+
 def fill_clips(
     corpus: str,
     clips: Sequence[Motion],
@@ -183,8 +188,7 @@ def test(corpus: str, n_clips: int | None, repeats: int) -> dict:
     headline gap errors per corruption of ``TEST`` and RMS per gap-length bin."""
     from mocapnet.methods.registry import build_method
 
-    clips = load_corpus(corpus, progress=False).split(0)[2]
-    clips = clips[:: max(1, len(clips) // n_clips)][:n_clips] if n_clips else clips
+    clips = subset(load_corpus(corpus, progress=False).split(0)[2], n_clips)
     fillers = {n: build_method(n).clean for n in (*REFERENCES, "ebd")} | {"ebd-raw": raw_filler(clips[0])}
     names = [*REFERENCES, "ebd-raw", "ebd"]
     rows, bins = [], []

@@ -63,11 +63,6 @@ def neural_methods(corruption: str, motion: Motion, extra: Sequence[str], shippe
     return (shipped_variants(motion) if shipped else []) + list(extra)
 
 
-def subset(clips: list[Motion], n: int | None) -> list[Motion]:
-    """``n`` clips evenly spaced over ``clips`` (the fold's order is stratified by content), or all."""
-    return clips if not n or n >= len(clips) else clips[:: len(clips) // n][:n]
-
-
 def split_clips(name: str, split: str, n_clips: int | None):
     """``(corpus, scored clips, training clips)``: fold-0 test clips (``"test"``) or the fold-1 validation
     clips (``"val"``, bandai2-style corpora only), ``n_clips`` of them (``subset``)."""
@@ -75,7 +70,7 @@ def split_clips(name: str, split: str, n_clips: int | None):
         raise ValueError(f"split must be one of {SPLITS}, got {split!r}")
     corpus = load_corpus(name, progress=False)
     train, val, test = corpus.split(0)
-    return corpus, subset(test if split == "test" else val, n_clips), train
+    return corpus, gap_bins_module.subset(test if split == "test" else val, n_clips), train
 
 
 def quality(
