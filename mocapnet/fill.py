@@ -57,6 +57,26 @@ def lerp_fill(channels: np.ndarray, mask: np.ndarray) -> np.ndarray:
     return out
 
 
+def gap_fill(channels: np.ndarray, mask: np.ndarray, spline_max: float) -> np.ndarray:
+    """Interpolation of the masked samples of ``channels [T, C]`` chosen per gap: each run of missing samples
+    of a column that is at most ``spline_max`` frames long takes ``spline_fill``'s value, longer runs (and every
+    run when ``spline_max < 1``) take ``lerp_fill``'s. The starting point of EBD's fill (``mocapnet.nn.ebd``):
+    short gaps are best bridged by a cubic, long ones by a line."""
+    out = lerp_fill(channels, mask)
+    if spline_max < 1:
+        return out
+    short = np.zeros(mask.shape, dtype=bool)
+    for cols in mask_groups(mask).values():
+        for a, b in runs(mask[:, cols[0]]):
+            if b - a <= spline_max:
+                short[a:b, cols] = True
+    cols = np.flatnonzero(short.any(axis=0))
+    if cols.size:
+        spline = spline_fill(channels[:, cols], mask[:, cols])
+        out[:, cols] = np.where(short[:, cols], spline, out[:, cols])
+    return out
+
+
 def spline_fill(channels: np.ndarray, mask: np.ndarray) -> np.ndarray:
     """Cubic-spline interpolation (scipy ``CubicSpline``, not-a-knot) over masked samples of ``[T, C]``;
     falls back to linear where fewer than 4 samples are observed, and holds values beyond the ends."""

@@ -25,6 +25,10 @@ skeleton is not mirror-symmetric in its joint frames (left arm bones along +X, r
 lateral axis is Y, the shoulders' Z), so a swap would need a per-joint rest-frame correction. A random root
 heading is not needed: the only root input, the hips' angular velocity, is expressed in the hips' own frame.
 
+Gaps are interpolated before a network sees them (``fill.gap_fill``): by cubic spline for gaps of at most
+``spline_max_s`` seconds, linearly beyond (0, the default: linearly everywhere). An EBD trained so must be built
+with the same ``spline_max_s``, since it predicts a correction to that interpolation.
+
 Validation clips are corrupted once with ``corrupt_motion`` and the protocol's seeds (repeat 0).
 
 Clip statistics (``base.NORM_KEYS``, used by ``norm="clip"`` networks). A validation clip carries those of its
@@ -46,7 +50,7 @@ from torch.utils.data import DataLoader, IterableDataset
 
 from mocapnet.corpus import load_corpus
 from mocapnet.corrupt import additive_noise, corrupt_motion, gap_mask, long_gap_mask, seed_for, spatial_noise
-from mocapnet.fill import lerp_fill
+from mocapnet.fill import gap_fill
 from mocapnet.motion import Motion, Skeleton
 from mocapnet.nn.base import clip_statistics
 from mocapnet.nn.features import (
@@ -272,6 +276,7 @@ class MotionDataModule(L.LightningDataModule):
         seed: int = 0,
         holdout_style: str | None = None,
         time_warp: tuple[float, float] | None = None,
+        spline_max_s: float = 0.0,
     ) -> None:
         super().__init__()
         self.save_hyperparameters()
@@ -321,7 +326,7 @@ class MotionDataModule(L.LightningDataModule):
             return None
         idx = scored_index(motion.skeleton)
         clip = ClipArrays.from_motion(motion)
-        filled = lerp_fill(noisy, mask)[:, idx]
+        filled = gap_fill(noisy, mask, self.hparams.spline_max_s * motion.fps)[:, idx]
         return as_batch(filled[None], mask[None][..., idx], clip.scored[None], clip.angvel[None])
 
     def sample_batch(self, rng: np.random.Generator) -> dict[str, torch.Tensor]:
@@ -352,7 +357,7 @@ class MotionDataModule(L.LightningDataModule):
             spatial = None if level is None else self.spatial[level][i][np.round(positions).astype(np.int64)]
             args = (clip.sigma, self.joint_of_channel, clip.fps, corruption, rng, spatial, self.segments)
             noisy, mask = corrupt_window(clean, *args)
-            out["filled"].append(lerp_fill(noisy, mask) if mask.any() else noisy)
+            out["filled"].append(gap_fill(noisy, mask, hp.spline_max_s * clip.fps) if mask.any() else noisy)
             out["mask"].append(mask)
             out["clean"].append(clean)
             out["angvel"].append(resample(clip.angvel, positions) * rate)

@@ -1,10 +1,12 @@
 """EBD (Encoder-Bidirectional-Decoder): fills gaps (EBF paper, Sec. 3, "Gap filling").
 
-Gaps are first filled by linear interpolation; per frame the input is the normalised filled channels, the
-missing-sample mask and the root angular velocity. The encoder (as EBF's) gives a ``code``-D vector; two
-bidirectional LSTM layers of ``hidden`` units per direction step through the clip with ``stride`` frames per
-step (windowed mode: ``half`` steps each way, i.e. 15 × 4 = 60 frames); a decoder of ``decoder_layers`` tanh
-layers (last one linear) gives, for every channel, a correction to the interpolated value in channel scales.
+Gaps are first interpolated (``fill.gap_fill``: linearly, or by cubic spline for gaps of at most
+``spline_max_s`` seconds when that hyper-parameter is above 0, as the network was trained); per frame the input
+is the normalised filled channels, the missing-sample mask and the root angular velocity. The encoder (as
+EBF's) gives a ``code``-D vector; two bidirectional LSTM layers of ``hidden`` units per direction step through
+the clip with ``stride`` frames per step (windowed mode: ``half`` steps each way, i.e. 15 × 4 = 60 frames); a
+decoder of ``decoder_layers`` tanh layers (last one linear) gives, for every channel, a correction to the
+interpolated value in channel scales.
 The output replaces only the missing samples; observed samples pass through unchanged.
 
 At inference the network's fill is not used as it comes (``blend_gaps``, issue 11): per gap (one run of
@@ -25,7 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from mocapnet.fill import lerp_fill, mask_groups, runs, spline_fill
+from mocapnet.fill import gap_fill, lerp_fill, mask_groups, runs, spline_fill
 from mocapnet.nn.base import CleanerModule
 from mocapnet.nn.features import wrap_near
 from mocapnet.nn.layers import BLSTM, mlp, tapered
@@ -54,6 +56,7 @@ class EBD(CleanerModule):
         skeleton_hash: str = "",
         fps: float = 0.0,
         corpus: str = "",
+        spline_max_s: float = 0.0,
     ) -> None:
         super().__init__(n_channels, lr, weight_decay, lr_patience)
         self.save_hyperparameters()
@@ -62,6 +65,11 @@ class EBD(CleanerModule):
         self.decoder = mlp([2 * hidden] + [width] * (decoder_layers - 1) + [n_channels], last_activation=False)
         torch.nn.init.zeros_(self.decoder[-1].weight)
         torch.nn.init.zeros_(self.decoder[-1].bias)
+
+    def interpolate(self, channels: np.ndarray, mask: np.ndarray, fps: float) -> np.ndarray:
+        """The interpolation this network corrects: ``channels [T, C]`` (degrees), ``mask [T, C]`` → ``[T, C]``
+        (``fill.gap_fill`` with the ``spline_max_s`` it was trained with)."""
+        return gap_fill(channels, mask, self.hparams.get("spline_max_s", 0.0) * fps)
 
     def features(self, filled: torch.Tensor, mask: torch.Tensor, angvel: torch.Tensor) -> torch.Tensor:
         """``[B, T, C]`` degrees, ``[B, T, C]`` bool, ``[B, T, 3]`` rad/s → encoder input ``[B, T, 2C + 3]``."""

@@ -176,7 +176,8 @@ def clean_channels(
 ) -> np.ndarray:
     """Clean one clip: ``channels [T, C]`` (degrees, NaN where ``mask [T, C]`` is True) → ``[T, C]``.
 
-    Gaps are first filled by linear interpolation; only the scored channels change (EBD changes only their
+    Gaps are first filled by linear interpolation (an EBD: by the interpolation it was trained to correct,
+    ``EBD.interpolate``); only the scored channels change (EBD changes only their
     missing samples). ``mode``: ``"sequence"`` (in overlapping chunks on long clips, ``predict_sequence``) or
     ``"windowed"`` (module docstring). ``gap_blend``: how EBD's fill is blended with interpolation and
     self-checked (``ebd.blend_gaps``); None keeps the network's fill as it comes. ``change_limit``: EBF's
@@ -184,7 +185,7 @@ def clean_channels(
     """
     if mode not in MODES:
         raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
-    result = lerp_fill(channels, mask)
+    result = model.interpolate(channels, mask, fps) if isinstance(model, EBD) else lerp_fill(channels, mask)
     idx = scored_index(skeleton)
     x = torch.as_tensor(result[:, idx], dtype=torch.float32)
     m = torch.as_tensor(mask[:, idx], dtype=torch.bool)
