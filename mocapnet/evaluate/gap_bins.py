@@ -140,23 +140,25 @@ def candidates() -> dict:
     }
 
 
-def raw_filler(clip: Motion) -> Callable[[Motion, np.ndarray], np.ndarray]:
-    """The shipped EBD network's fill as it comes (no blend), for clips of ``clip``'s skeleton."""
+def raw_filler(clip: Motion, checkpoint: str | None = None) -> Callable[[Motion, np.ndarray], np.ndarray]:
+    """An EBD network's fill as it comes (no blend): ``checkpoint`` (a path), by default the shipped EBD for
+    clips of ``clip``'s skeleton."""
     from mocapnet.nn.checkpoints import shipped_checkpoint
     from mocapnet.nn.infer import clean_channels, load_model
 
-    model = load_model(shipped_checkpoint("ebd", clip.skeleton))
+    model = load_model(checkpoint or shipped_checkpoint("ebd", clip.skeleton))
     return lambda m, mask: clean_channels(model, m.channels, mask, m.skeleton, m.fps, gap_blend=None)
 
 
-def tune(repeats: int) -> dict:
-    """Score ``candidates()`` and the raw network on bandai2 fold 1 (``ratios``): the blend geometry selected by
-    ``select`` and the self-check by the most fallbacks within 0.5 % of the mean ratio without it."""
+def tune(repeats: int, checkpoint: str | None = None) -> dict:
+    """Score ``candidates()`` and the raw network (``checkpoint``, default the shipped EBD) on bandai2 fold 1
+    (``ratios``): the blend geometry selected by ``select`` and the self-check by the most fallbacks within
+    0.5 % of the mean ratio without it."""
     from mocapnet.methods.registry import build_method
     from mocapnet.nn.ebd import blend_gaps
 
     clips = load_corpus("bandai2", progress=False).split(0)[1]
-    fillers = {n: build_method(n).clean for n in REFERENCES} | {"ebd-raw": raw_filler(clips[0])}
+    fillers = {n: build_method(n).clean for n in REFERENCES} | {"ebd-raw": raw_filler(clips[0], checkpoint)}
     filled = {c: fill_clips("bandai2", clips, c, repeats, fillers) for c in TUNE}
     scores, fallbacks = {"ebd-raw": ratios(filled, "ebd-raw")}, {}
     for label, blend in candidates().items():
@@ -183,13 +185,16 @@ def choose(scores: Mapping[str, Mapping[str, float]], fallbacks: Mapping[str, in
     return {"selected": select(geometry), "check": check}
 
 
-def test(corpus: str, n_clips: int | None, repeats: int) -> dict:
-    """lerp, spline, the raw network and ``ebd`` on ``n_clips`` evenly spaced fold-0 clips (default all):
-    headline gap errors per corruption of ``TEST`` and RMS per gap-length bin."""
+def test(corpus: str, n_clips: int | None, repeats: int, checkpoint: str | None = None) -> dict:
+    """lerp, spline, the raw network and ``ebd`` (``checkpoint``, default the shipped EBD) on ``n_clips`` evenly
+    spaced fold-0 clips (default all): headline gap errors per corruption of ``TEST`` and RMS per gap-length
+    bin."""
     from mocapnet.methods.registry import build_method
 
     clips = subset(load_corpus(corpus, progress=False).split(0)[2], n_clips)
-    fillers = {n: build_method(n).clean for n in (*REFERENCES, "ebd")} | {"ebd-raw": raw_filler(clips[0])}
+    ebd = "ebd" if checkpoint is None else f"ebd={checkpoint}"
+    fillers = {n: build_method(n).clean for n in REFERENCES} | {"ebd": build_method(ebd).clean}
+    fillers["ebd-raw"] = raw_filler(clips[0], checkpoint)
     names = [*REFERENCES, "ebd-raw", "ebd"]
     rows, bins = [], []
     for c in TEST:
