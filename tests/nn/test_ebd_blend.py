@@ -85,3 +85,19 @@ def test_channel_speed_uses_observed_pairs_only():
     mask[:, 1] = True
     speed = channel_speed(channels, mask, 100.0)
     assert speed[0] == pytest.approx(1.0) and speed[1] == np.inf
+
+
+@pytest.mark.parametrize("spline_max_s", [0.0, 0.5])
+def test_an_untrained_ebd_returns_the_interpolation_it_corrects(tiny, sample, spline_max_s):
+    from mocapnet.fill import gap_fill
+    from mocapnet.nn.infer import clean_channels, scored_index
+
+    model = tiny("ebd", sample, spline_max_s=spline_max_s).eval()  # the decoder's last layer starts at zero
+    rng = np.random.default_rng(3)
+    noisy, mask = corrupt_motion(sample.with_channels(sample.channels[:600]), "gaps", rng)
+    out = clean_channels(model, noisy, mask, sample.skeleton, sample.fps, gap_blend=None)
+    idx = scored_index(sample.skeleton)
+    expected = gap_fill(noisy, mask, spline_max_s * sample.fps)[:, idx]
+    np.testing.assert_allclose(out[:, idx], expected, atol=1e-3)  # float32 network arithmetic
+    if spline_max_s:
+        assert not np.allclose(expected[mask[:, idx]], lerp_fill(noisy, mask)[:, idx][mask[:, idx]])
