@@ -81,7 +81,17 @@ PLATEAU_VARIANTS: tuple[dict, ...] = (
     {"plateau_s": 1.0},
     {"plateau_s": 0.5, "max_weight": 0.7},
 )
-GRIDS = {"main": TUNE_VARIANTS, "plateau": PLATEAU_VARIANTS}
+# Third session (``--tune --grid twist``): the fallback's twist from the kNN estimate, and the limb gate.
+TWIST_VARIANTS: tuple[dict, ...] = (
+    {},
+    {"knn_twist": True},
+    {"knn_twist": True, "limb_gate": 10.0},
+    {"knn_twist": True, "limb_gate": 20.0},
+    {"knn_twist": True, "k": 32},
+    {"knn_twist": True, "margin_s": 0.5},
+    {"knn_twist": True, "distance_gain": 9.0},
+)
+GRIDS = {"main": TUNE_VARIANTS, "plateau": PLATEAU_VARIANTS, "twist": TWIST_VARIANTS}
 
 
 def evenly(items: Sequence, n: int) -> list:
@@ -208,10 +218,10 @@ def variants_of(rows: list[dict]) -> list[str]:
     return list(dict.fromkeys(r["method"] for r in rows if r["method"] not in ("lerp", "pca")))
 
 
-def tune_scores(rows: list[dict]) -> dict[str, float]:
-    """The selection rule (knn-note): per variant the mean over (corruption, mode) cells of
-    ``max(pos_err / min(lerp, pca pos_err), RMS gap_err / lerp's RMS gap_err)``."""
-    scores: dict[str, list[float]] = {}
+def tune_ratios(rows: list[dict]) -> dict[str, list[tuple[float, float]]]:
+    """Per knn variant of ``tune`` rows and (corruption, mode) cell: (``pos_err / min(lerp, pca pos_err)``,
+    ``RMS gap_err / lerp's RMS gap_err``)."""
+    ratios: dict[str, list[tuple[float, float]]] = {}
     for c in TUNE_CORRUPTIONS:
         for mode in ("in", "out"):
             sel = [r for r in rows if r["corruption"] == c and r["mode"] == mode]
@@ -219,15 +229,26 @@ def tune_scores(rows: list[dict]) -> dict[str, float]:
             rms = {m: np.sqrt(_mean([{"g": r["gap_err_deg"] ** 2} for r in sel if r["method"] == m], "g"))
                    for m in {r["method"] for r in sel}}  # fmt: skip
             for v in variants_of(rows):
-                ratio = max(_mean(sel, "pos_err_cm", method=v) / best_pos, rms[v] / rms["lerp"])
-                scores.setdefault(v, []).append(ratio)
-    return {v: float(np.mean(s)) for v, s in scores.items()}
+                ratios.setdefault(v, []).append((_mean(sel, "pos_err_cm", method=v) / best_pos, rms[v] / rms["lerp"]))
+    return ratios
+
+
+def tune_scores(rows: list[dict]) -> dict[str, float]:
+    """The selection rule (knn-note): per variant the mean over (corruption, mode) cells of
+    ``max(pos_err / min(lerp, pca pos_err), RMS gap_err / lerp's RMS gap_err)``."""
+    return {v: float(np.mean([max(cell) for cell in cells])) for v, cells in tune_ratios(rows).items()}
+
+
+def tune_angle_ratios(rows: list[dict]) -> dict[str, float]:
+    """The selection rule's guard (knn-note, third session): per variant the mean over the cells of
+    ``RMS gap_err / lerp's RMS gap_err``."""
+    return {v: float(np.mean([cell[1] for cell in cells])) for v, cells in tune_ratios(rows).items()}
 
 
 def tune_markdown(rows: list[dict], report: dict) -> str:
     """Table of ``tune`` rows: per variant and cell RMS gap error (°) / position error (cm), and the score;
     ``report``: the run's ``report.provenance`` and ``wall_s``."""
-    scores = tune_scores(rows)
+    scores, angles = tune_scores(rows), tune_angle_ratios(rows)
     cells = [(c, mode) for mode in ("in", "out") for c in TUNE_CORRUPTIONS]
     lines = [
         f"# Joint-space knn settings on bandai2 fold 1 ({len({r['file'] for r in rows})} clips of at least 7 s)",
@@ -238,7 +259,8 @@ def tune_markdown(rows: list[dict], report: dict) -> str:
         f"Defaults: `{WindowSettings(**ANGLE_DEFAULTS)}`. Each cell: RMS gap error (degrees) / "
         "whole-body position error (cm). *in*: database = bandai2 without fold 1; *out*: also without every "
         "clip of the scored clip's content label (motion the database lacks). score: mean over the cells of "
-        "max(pos / better of lerp and pca, gap / lerp); lowest wins (the selection rule of the knn note).",
+        "max(pos / better of lerp and pca, gap / lerp); lowest wins (the selection rule of the knn note). "
+        "angle ratio: mean over the cells of gap / lerp (third session's guard: at most the defaults').",
         "",
     ]
     body = []
@@ -248,8 +270,8 @@ def tune_markdown(rows: list[dict], report: dict) -> str:
             sel = [r for r in rows if r["corruption"] == c and r["mode"] == mode and r["method"] == m]
             rms = np.sqrt(np.mean([r["gap_err_deg"] ** 2 for r in sel]))
             out.append(f"{rms:.2f} / {_mean(sel, 'pos_err_cm'):.3f}")
-        body.append([m, *out, fmt(scores.get(m))])
-    head = ["variant", *(f"{c.split(':', 1)[1]} {mode}" for c, mode in cells), "score"]
+        body.append([m, *out, fmt(scores.get(m)), fmt(angles.get(m))])
+    head = ["variant", *(f"{c.split(':', 1)[1]} {mode}" for c, mode in cells), "score", "angle ratio"]
     return "\n".join(lines + markdown_table(head, body)) + "\n"
 
 

@@ -86,9 +86,9 @@ from mocapnet.methods.knn_window import (
     WindowSettings,
     blend_weight,
     edge_seconds,
-    fill_run,
+    estimate_run,
     gather,
-    neighbour_windows,
+    search_gap,
 )
 from mocapnet.methods.pca import fill_remaining_linear  # importing pca also registers the "pca" method
 from mocapnet.methods.registry import MethodContext, register
@@ -826,37 +826,27 @@ def fill_markers(
     searcher = Searcher(level.positions[:, cols[mapped]], level.clip, database.describe())
     complete = ~missing.any(axis=1)
     own = Searcher(base[:, mapped], np.zeros(n_t, dtype=int), f"{name} itself") if settings.own else None
-    stride = max(1, int(round(markers.fps / settings.query_hz)))
-    margin = max(1, int(round(settings.margin_s * markers.fps)))
     seconds = edge_seconds(missing, markers.fps)
     for a, b in runs(missing.any(axis=1)):
-        stats.gaps += 1
         unknown = np.flatnonzero(missing[a:b].any(axis=0))  # indices into markers (all mapped)
         edge = a - 1 if a > 0 else min(b, n_t - 1)
         near = np.linalg.norm(base[edge, mapped][:, None] - base[edge, unknown][None], axis=-1).min(axis=1)
         gain = 1.0 + settings.near_gain / np.maximum(1.0, near / 10.0)
-        w0, w1 = max(0, a - margin), min(n_t, b + margin)
-        grid = np.arange(w0, w1, stride)
-        w = markers.visible[np.ix_(grid, mapped)] * gain
-        t0 = time.process_time()
-        d2, starts, from_own = neighbour_windows(
-            searcher, own, base[np.ix_(grid, mapped)], w, grid - w0, w1 - w0, allowed, complete, settings.k
-        )
-        stats.search_s += time.process_time() - t0
-        kernel = 1.0 / (d2 + _KERNEL_EPS2)
-        kernel /= kernel.sum()
-        rms = float(np.sqrt((kernel * d2).sum() / w.sum()))
-        stats.distance.append(rms)
-        lo, hi = max(a - 1, 0), min(b, n_t - 1)
-        span = np.arange(lo, hi + 1)
-        traj = gather(level.positions[:, cols[unknown]], base[:, unknown], starts, from_own, span - w0)  # [S, k, U, 3]
+        nb = search_gap(
+            searcher, own, base[:, mapped], markers.visible[:, mapped], gain, (a, b), markers.fps, settings, allowed,
+            complete, stats,
+        )  # fmt: skip
+        lo = nb.span[0]
+        traj = gather(level.positions[:, cols[unknown]], base[:, unknown], nb.starts, nb.from_own, nb.span - nb.w0)
         for u, m in enumerate(unknown):
-            for c0, c1 in runs(missing[lo : hi + 1, m]):
+            for c0, c1 in runs(missing[lo : nb.span[-1] + 1, m]):
                 run = (c0 + lo, c1 + lo)
                 for c in range(3):
-                    fill_run(
-                        out[:, m, c], base[:, m, c], traj[:, :, u, c], kernel, seconds[:, m], lo, run, rms, settings
+                    b_c = base[:, m, c]
+                    t, est, beta = estimate_run(
+                        b_c, traj[:, :, u, c], nb.kernel, seconds[:, m], lo, run, nb.rms, settings
                     )
+                    out[t, m, c] = b_c[t] + beta * (est - b_c[t])
     result = markers.points.copy()
     result[missing] = denormalise(out, origin, rot)[missing]
     stats.total_s = time.process_time() - t_start

@@ -49,14 +49,13 @@ from mocapnet.kinematics import inverse_kinematics, joint_positions
 from mocapnet.methods.baselines import lerp_fill
 from mocapnet.methods.knn_database import SkeletonDatabase, cached_database, default_corpus
 from mocapnet.methods.knn_window import (
-    _KERNEL_EPS2,
     FillStats,
     Searcher,
     WindowSettings,
     edge_seconds,
-    fill_run,
+    estimate_run,
     gather,
-    neighbour_windows,
+    search_gap,
 )
 from mocapnet.methods.pca import pca_fill
 from mocapnet.methods.registry import MethodContext, register
@@ -187,45 +186,41 @@ def fill_angles(
         return out, stats
     joint_missing = np.stack([mask[:, sk.joint_channels(j)].any(axis=1) for j in range(sk.n_joints)], axis=1)
     visible = points_visible(sk, joint_missing)
-    weights = visible.astype(np.float32)
     feats = db.reference.points(sk, base, motion.fps, motion.name)
     skip = set(exclude) | {motion.name, motion.name.split("#")[0]}  # "clip#test": a time split of "clip"
     allowed = np.array([n not in skip for n in db.names])[db.clip]
-    stride = max(1, int(round(motion.fps / settings.query_hz)))
-    margin = max(1, int(round(settings.margin_s * motion.fps)))
     seconds = edge_seconds(mask, motion.fps)
     n_t = motion.n_frames
     complete = ~smask.any(axis=1)
-    anchor = pca_angles(motion, mask, base, visible) if settings.fallback == "pca" else base
     own = Searcher(feats, np.zeros(n_t, dtype=int), f"{motion.name} itself") if settings.own else None
+    est, beta = base.copy(), np.zeros(mask.shape)  # kNN estimate and its blend weight, per sample
+    twist = base.copy()  # where the PCA fallback's IK takes its twist from
+    filled = np.zeros(mask.shape, dtype=bool)  # the scored missing samples the blend writes
     for a, b in runs(smask.any(axis=1)):
-        stats.gaps += 1
         unknown = np.flatnonzero(smask[a:b].any(axis=0))  # indices into scored_cols
         gain = 1.0 + settings.near_gain / np.maximum(hop_distances(sk, np.flatnonzero(joint_missing[a:b].any(0))), 1)
-        w0, w1 = max(0, a - margin), min(n_t, b + margin)
-        grid = np.arange(w0, w1, stride)
-        w = weights[grid] * gain
-        t0 = time.process_time()
-        d2, starts, from_own = neighbour_windows(
-            searcher, own, feats[grid], w, grid - w0, w1 - w0, allowed, complete, settings.k
-        )
-        stats.search_s += time.process_time() - t0
-        lo, hi = max(a - 1, 0), min(b, n_t - 1)
-        span = np.arange(lo, hi + 1)
+        nb = search_gap(searcher, own, feats, visible, gain, (a, b), motion.fps, settings, allowed, complete, stats)
         cols = scored_cols[unknown]
-        traj = gather(db.channels[:, unknown], motion.channels[:, cols], starts, from_own, span - w0)  # [S, k, U]
-        kernel = 1.0 / (d2 + _KERNEL_EPS2)
-        kernel /= kernel.sum()
-        rms = float(np.sqrt((kernel * d2).sum() / w.sum()))  # cm per weighted point and frame
-        stats.distance.append(rms)
-        stats.limb_distance.append(limb_rms(db.points, feats, starts, from_own, grid, w0, w, kernel, (a, b)))
-        if settings.limb_distance and np.isfinite(stats.limb_distance[-1]):
-            rms = stats.limb_distance[-1]
+        traj = gather(db.channels[:, unknown], motion.channels[:, cols], nb.starts, nb.from_own, nb.span - nb.w0)
+        limb = limb_rms(db.points, feats, nb.starts, nb.from_own, nb.grid, nb.w0, nb.weights, nb.kernel, (a, b))
+        stats.limb_distance.append(limb)
+        rms = limb if settings.limb_distance and np.isfinite(limb) else nb.rms
+        gated = settings.limb_gate is not None and np.isfinite(limb) and limb > settings.limb_gate
+        lo = nb.span[0]
         for u, c in enumerate(cols):
-            near = base[span, c][:, None] + wrap(traj[:, :, u] - base[span, c][:, None])  # [S, k] degrees
-            for c0, c1 in runs(mask[lo : hi + 1, c]):
-                run = (c0 + lo, c1 + lo)
-                fill_run(out[:, c], base[:, c], near, kernel, seconds[:, c], lo, run, rms, settings, anchor[:, c])
+            near = base[nb.span, c][:, None] + wrap(traj[:, :, u] - base[nb.span, c][:, None])  # [S, k] degrees
+            for c0, c1 in runs(mask[lo : nb.span[-1] + 1, c]):
+                t, e, bt = estimate_run(
+                    base[:, c], near, nb.kernel, seconds[:, c], lo, (c0 + lo, c1 + lo), rms, settings
+                )
+                est[t, c], beta[t, c], filled[t, c] = e, 0.0 if gated else bt, True
+                if not gated:
+                    twist[t, c] = e
+    if settings.fallback == "pca":
+        anchor = pca_angles(motion, mask, twist if settings.knn_twist else base, visible)
+    else:
+        anchor = base
+    out[filled] = anchor[filled] + beta[filled] * (est[filled] - anchor[filled])
     out[~mask] = motion.channels[~mask]
     stats.total_s = time.process_time() - t_start
     return out, stats

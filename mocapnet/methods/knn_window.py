@@ -4,6 +4,7 @@ interpolation. See the ``knn_angles`` module docstring for the method. Imports n
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -143,7 +144,11 @@ class WindowSettings:
     ``limb_distance``: the distance that ``distance_gain`` scales is measured on the missing points only, in
     the margins where they are observed (how well the neighbours match the missing limb itself), instead of
     on every point (joint space only); ``plateau_s``: the fallback's error is taken to stop growing this many
-    seconds from the nearest observed frame (PCA's error does not grow like interpolation's; None: never)."""
+    seconds from the nearest observed frame (PCA's error does not grow like interpolation's; None: never);
+    ``knn_twist`` (joint space, fallback ``pca``): the fallback's inverse kinematics takes the rotation that
+    positions cannot fix (twist about a bone with one child) from the kNN estimate instead of from linear
+    interpolation; ``limb_gate`` (cm, joint space): a gap whose neighbours' limb distance exceeds this takes
+    the fallback only (None: never)."""
 
     k: int = 16
     margin_s: float = 0.3
@@ -157,17 +162,19 @@ class WindowSettings:
     max_weight: float = 1.0
     limb_distance: bool = False
     plateau_s: float | None = None
+    knn_twist: bool = False
+    limb_gate: float | None = None
 
     def __post_init__(self) -> None:
-        plateau_ok = self.plateau_s is None or self.plateau_s > 0
-        if self.k < 1 or not 0.0 <= self.max_weight <= 1.0 or self.fallback not in ("lerp", "pca") or not plateau_ok:
+        positive = all(v is None or v > 0 for v in (self.plateau_s, self.limb_gate))
+        if self.k < 1 or not 0.0 <= self.max_weight <= 1.0 or self.fallback not in ("lerp", "pca") or not positive:
             raise ValueError(
-                f"knn: k must be >= 1, max_weight in [0, 1], fallback lerp or pca, plateau_s > 0; got {self}"
+                "knn: k must be >= 1, max_weight in [0, 1], fallback lerp or pca, plateau_s and limb_gate > 0; "
+                f"got {self}"
             )
 
 
-def fill_run(
-    out: np.ndarray,
+def estimate_run(
     base: np.ndarray,
     near: np.ndarray,
     kernel: np.ndarray,
@@ -176,18 +183,18 @@ def fill_run(
     run: tuple[int, int],
     rms: float,
     settings: WindowSettings,
-    anchor: np.ndarray | None = None,
-) -> None:
-    """Fill one channel's missing run ``[c0, c1)`` of ``out [T]`` (degrees, in place) from the neighbours'
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The kNN estimate of one channel's missing run ``[c0, c1)`` and its blend weight, from the neighbours'
     values ``near [S, k]`` at frames ``lo, lo + 1, …`` (kernel weights ``[k]``): with ``offset``, each
-    neighbour contributes its deviation from its own straight line between the run's edge frames, added
-    to ``base`` (the interpolation); the weighted spread of the contributions and the neighbours' distance
-    ``rms`` (cm) set the blend weight towards ``anchor [T]`` (default ``base``). ``seconds [T]``: distance to
-    the nearest observed frame."""
+    neighbour contributes its deviation from its own straight line between the run's edge frames, added to
+    ``base [T]`` (the interpolation). The weighted spread of the contributions and the neighbours' distance
+    ``rms`` (cm) set the weight β (``blend_weight``, times ``max_weight``; 1 with ``speed`` None);
+    ``seconds [T]``: distance to the nearest observed frame. Returns the run's frames ``t [n]``, the estimate
+    ``[n]`` (units of ``near``) and β ``[n]``."""
     c0, c1 = run
     t = np.arange(c0, c1)
     vals = near[t - lo]
-    edges = [f for f in (c0 - 1, c1) if 0 <= f < len(out)] if settings.offset else []
+    edges = [f for f in (c0 - 1, c1) if 0 <= f < len(base)] if settings.offset else []
     if edges:
         at = near[np.array(edges) - lo]  # [E, k]
         line = at[0] if len(edges) == 1 else at[0] + (at[1] - at[0]) * ((t - edges[0]) / (edges[1] - edges[0]))[:, None]
@@ -195,14 +202,70 @@ def fill_run(
     else:
         contrib = vals
     est = contrib @ kernel
-    spread = np.sqrt(((contrib - est[:, None]) ** 2) @ kernel)
     if settings.speed is None:
-        out[t] = est
-        return
+        return t, est, np.ones(len(t))
+    spread = np.sqrt(((contrib - est[:, None]) ** 2) @ kernel)
     d = seconds[t] if settings.plateau_s is None else np.minimum(seconds[t], settings.plateau_s)
     beta = settings.max_weight * blend_weight(np.hypot(spread, settings.distance_gain * rms), d, settings.speed)
-    anchor = base if anchor is None else anchor
-    out[t] = anchor[t] + beta * (est - anchor[t])
+    return t, est, beta
+
+
+@dataclass(frozen=True)
+class Neighbours:
+    """The nearest windows of one gap (``search_gap``): the window starts at frame ``w0``; query poses at frames
+    ``grid [F]`` with point weights ``weights [F, P]``; neighbours' squared distances ``d2 [k]`` (cm²), start
+    frames ``starts [k]``, ``from_own [k]`` (start in the input) and normalised kernel weights ``kernel [k]``;
+    ``rms`` their kernel-weighted RMS feature distance per weighted point and frame (cm); ``span``: the gap's
+    frames with the observed frame on each side (clipped to the input), where the neighbours are read."""
+
+    w0: int
+    grid: np.ndarray
+    weights: np.ndarray
+    d2: np.ndarray
+    starts: np.ndarray
+    from_own: np.ndarray
+    kernel: np.ndarray
+    rms: float
+    span: np.ndarray
+
+
+def search_gap(
+    searcher: Searcher,
+    own: Searcher | None,
+    feats: np.ndarray,
+    visible: np.ndarray,
+    gain: np.ndarray,
+    gap: tuple[int, int],
+    fps: float,
+    settings: WindowSettings,
+    allowed: np.ndarray,
+    complete: np.ndarray,
+    stats: FillStats,
+) -> Neighbours:
+    """The ``settings.k`` nearest windows of the gap ``[a, b)``: the gap plus ``margin_s`` on each side, one
+    query pose every ``1 / query_hz`` s, from ``feats [T, P, 3]`` (cm) with point weights ``visible [T, P] ·
+    gain [P]``, among the database's (``searcher``, frames ``allowed``) and, with ``own``, the input's own
+    fully observed windows (frames ``complete``). Counts the gap, its search CPU time and distance in
+    ``stats``."""
+    a, b = gap
+    n_t = len(feats)
+    stride = max(1, int(round(fps / settings.query_hz)))
+    margin = max(1, int(round(settings.margin_s * fps)))
+    w0, w1 = max(0, a - margin), min(n_t, b + margin)
+    grid = np.arange(w0, w1, stride)
+    w = visible[grid] * gain
+    t0 = time.process_time()
+    d2, starts, from_own = neighbour_windows(
+        searcher, own, feats[grid], w, grid - w0, w1 - w0, allowed, complete, settings.k
+    )
+    stats.search_s += time.process_time() - t0
+    stats.gaps += 1
+    kernel = 1.0 / (d2 + _KERNEL_EPS2)
+    kernel /= kernel.sum()
+    rms = float(np.sqrt((kernel * d2).sum() / w.sum()))
+    stats.distance.append(rms)
+    span = np.arange(max(a - 1, 0), min(b, n_t - 1) + 1)
+    return Neighbours(w0, grid, w, d2, starts, from_own, kernel, rms, span)
 
 
 def neighbour_windows(

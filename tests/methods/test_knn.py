@@ -32,7 +32,7 @@ from mocapnet.methods.knn import (
 )
 from mocapnet.methods.knn_angles import fill_angles, limb_rms, wrap
 from mocapnet.methods.knn_database import SkeletonDatabase, cached_database, default_corpus
-from mocapnet.methods.knn_window import Searcher, WindowSettings, fill_run
+from mocapnet.methods.knn_window import Searcher, WindowSettings, estimate_run
 from mocapnet.methods.pca import pca_fill
 from mocapnet.methods.rigid import kabsch
 from mocapnet.motion import Markers, Motion
@@ -410,15 +410,18 @@ def test_max_weight_caps_the_knn_share_and_bad_settings_are_refused() -> None:
     kernel = np.array([0.5, 0.5])
     seconds = np.full(n, 1e3)  # far from the observed frames: the blend weight is max_weight
     base, anchor = np.linspace(0.0, 10.0, n), np.full(n, -3.0)
-    full, half = np.zeros(n), np.zeros(n)
-    fill_run(full, base, near, kernel, seconds, 0, (5, 15), 0.0, WindowSettings(speed=60.0), anchor)
-    fill_run(half, base, near, kernel, seconds, 0, (5, 15), 0.0, WindowSettings(speed=60.0, max_weight=0.5), anchor)
-    assert np.allclose(half[5:15], 0.5 * (full[5:15] + anchor[5:15])) and np.abs(full - anchor)[5:15].max() > 1.0
-    assert np.all(half[:5] == 0) and np.all(half[15:] == 0)  # only the run is written
-    capped = np.zeros(n)  # the fallback's error stops growing 0.01 s out: the kNN share shrinks
-    fill_run(capped, base, near, kernel, seconds, 0, (5, 15), 0.0, WindowSettings(speed=1.0, plateau_s=0.01), anchor)
-    assert np.abs(capped - anchor)[5:15].max() < np.abs(full - anchor)[5:15].max()
-    for bad in ({"max_weight": 1.5}, {"k": 0}, {"fallback": "spline"}, {"plateau_s": 0.0}):
+
+    def blend(settings: WindowSettings) -> np.ndarray:
+        t, est, beta = estimate_run(base, near, kernel, seconds, 0, (5, 15), 0.0, settings)
+        assert np.array_equal(t, np.arange(5, 15))  # only the run is estimated
+        return anchor[t] + beta * (est - anchor[t])
+
+    full, half = blend(WindowSettings(speed=60.0)), blend(WindowSettings(speed=60.0, max_weight=0.5))
+    assert np.allclose(half, 0.5 * (full + anchor[5:15])) and np.abs(full - anchor[5:15]).max() > 1.0
+    capped = blend(WindowSettings(speed=1.0, plateau_s=0.01))  # the fallback's error stops growing 0.01 s out
+    assert np.abs(capped - anchor[5:15]).max() < np.abs(full - anchor[5:15]).max()  # the kNN share shrinks
+    bad_settings = ({"max_weight": 1.5}, {"k": 0}, {"fallback": "spline"}, {"plateau_s": 0.0}, {"limb_gate": -1.0})
+    for bad in bad_settings:
         with pytest.raises(ValueError, match="knn: k must be"):
             WindowSettings(**bad)
 
