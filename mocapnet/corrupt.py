@@ -15,7 +15,7 @@ takes either the object or the name.
 from __future__ import annotations
 
 import hashlib
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -260,9 +260,18 @@ def long_gap_mask(
     count = int(rng.integers(1, 4))
     for track in rng.choice(candidates, size=min(count, len(candidates)), replace=False):
         length = min(int(round(rng.uniform(min_s, max_s) * fps)), n_frames - 2)
-        onset = int(rng.integers(1, n_frames - 1 - length + 1))
-        mask[onset : onset + length, track] = True
+        place_gap(mask, track, length, 1, rng)
     return mask
+
+
+def place_gap(
+    mask: np.ndarray, tracks: int | Sequence[int] | np.ndarray, length: int, margin: int, rng: np.random.Generator
+) -> None:
+    """Mark ``tracks`` of ``mask [T, n_tracks]`` missing (True, in place) for ``length`` frames at one onset
+    drawn uniformly (one ``rng.integers`` draw) from ``margin … T - margin - length``, so that at least
+    ``margin`` frames stay visible on each side. The caller makes sure that range is not empty."""
+    onset = int(rng.integers(margin, len(mask) - margin - length + 1))
+    mask[onset : onset + length, tracks] = True
 
 
 def window_gap_mask(
@@ -285,9 +294,8 @@ def window_gap_mask(
             f"{name or 'clip'}: {n_frames} frames at {fps:g} Hz are too short for a {seconds:g} s gap with "
             f"{margin_s:g} s visible on each side"
         )
-    onset = int(rng.integers(margin, last_onset + 1))
     mask = np.zeros((n_frames, n_tracks), dtype=bool)
-    mask[onset : onset + length, tracks] = True
+    place_gap(mask, tracks, length, margin, rng)
     return mask
 
 

@@ -7,6 +7,7 @@ from mocapnet.corrupt import (
     corrupt_motion,
     gap_mask,
     long_gap_mask,
+    place_gap,
     seed_for,
 )
 from mocapnet.io import read_c3d
@@ -110,6 +111,19 @@ def test_long_gaps():
         assert 1 <= len(tracks) <= 3 and set(tracks) <= set(range(5, 15))
         for t in tracks:
             assert 60 <= mask[:, t].sum() <= 150
+
+
+def test_place_gap_onsets_cover_the_range_inside_the_margins():
+    rng = _rng(5)
+    onsets = set()
+    for _ in range(400):
+        mask = np.zeros((30, 4), dtype=bool)
+        place_gap(mask, [1, 3], 7, 4, rng)
+        rows = np.flatnonzero(mask.any(axis=1))
+        assert len(rows) == 7 and (rows == rows[0] + np.arange(7)).all()
+        assert (mask[:, [1, 3]].any(axis=1) == mask.any(axis=1)).all() and not mask[:, [0, 2]].any()
+        onsets.add(int(rows[0]))
+    assert onsets == set(range(4, 30 - 4 - 7 + 1))
 
 
 @pytest.mark.parametrize("name", [c for c in ANGLE_CORRUPTIONS if "gap" in c])

@@ -49,7 +49,15 @@ import torch
 from torch.utils.data import DataLoader, IterableDataset
 
 from mocapnet.corpus import load_corpus
-from mocapnet.corrupt import additive_noise, corrupt_motion, gap_mask, long_gap_mask, seed_for, spatial_noise
+from mocapnet.corrupt import (
+    additive_noise,
+    corrupt_motion,
+    gap_mask,
+    long_gap_mask,
+    place_gap,
+    seed_for,
+    spatial_noise,
+)
 from mocapnet.fill import gap_fill
 from mocapnet.motion import Motion, Skeleton
 from mocapnet.nn.base import clip_statistics
@@ -165,8 +173,7 @@ def segment_gap_mask(
         return mask
     limb = segments[int(rng.integers(len(segments)))]
     length = int(np.clip(round(rng.uniform(*seconds) * fps), 1, n_frames - 2))
-    start = int(rng.integers(1, n_frames - length))
-    mask[start : start + length, limb] = True
+    place_gap(mask, limb, length, 1, rng)
     return mask
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from mocapnet.corrupt import window_gap_mask
 from mocapnet.fill import runs
 from mocapnet.motion import Motion
 from mocapnet.nn.data import MotionDataModule, corrupt_window, resample, segment_gap_mask, spatial_level
@@ -53,6 +54,19 @@ def test_segment_gap_removes_one_whole_limb_for_one_run(module: MotionDataModule
         assert any(set(missing) == set(limb) for limb in module.segments)
         assert len(runs(mask[:, missing[0]])) == 1 and not mask[0].any() and not mask[-1].any()
         assert (mask[:, missing] == mask[:, missing[:1]]).all()
+
+
+def test_segment_gap_places_its_run_as_window_gap_mask_does(module: MotionDataModule):
+    """After its limb and length draws, the same rng stream gives the mask of ``corrupt.window_gap_mask`` with
+    one visible frame on each side."""
+    n_joints = int(module.joint_of_channel.max()) + 1
+    for seed in range(40):
+        got = segment_gap_mask(200, module.segments, n_joints, 120.0, np.random.default_rng(seed))
+        rng = np.random.default_rng(seed)
+        limb = module.segments[int(rng.integers(len(module.segments)))]
+        length = int(np.clip(round(rng.uniform(0.1, 5.0) * 120.0), 1, 198))
+        want = window_gap_mask(200, list(limb), n_joints, length / 120.0, 120.0, rng, margin_s=1 / 120.0)
+        np.testing.assert_array_equal(got, want)
 
 
 def test_time_warped_batches(module: MotionDataModule):
