@@ -17,6 +17,18 @@ A variant name given a checkpoint checks that the checkpoint is that variant; ``
 Gaps are filled by linear interpolation before any network; EBD's fill of each gap is then blended with the
 better interpolation for its length and self-checked (``mocapnet.nn.ebd.blend_gaps``).
 Only the scored channels change. torch is imported when a method is built, never by ``import mocapnet``.
+
+Test-time augmentation (a self-ensemble, option ``tta``) and blending (option ``blend``) of any single network:
+
+    --method ebf:tta=reverse           mean of the clip cleaned as it is and cleaned time-reversed (2 passes)
+    --method ebf:tta=warp              mean over the clip at 1×, 0.9× and 1.1× speed (3 passes)
+    --method ebf:tta=reverse+warp      both (6 passes)
+    --method ebf:blend=gaussian-tuned  a blend, not EBF: mean of EBF's output and that angle method's
+
+Each pass is ``infer.clean_channels`` on a transformed copy (reversed in time; resampled by linear
+interpolation of the unwrapped channels), whose output is transformed back; the passes' scored channels are
+averaged on the circle (``tta_mean``). A reversed clip's root angular velocity is what
+``features.root_angular_velocity`` gives on the reversed channels (``clean_channels`` computes it).
 """
 
 from __future__ import annotations
@@ -27,11 +39,17 @@ from pathlib import Path
 
 import numpy as np
 
-from mocapnet.methods.registry import MethodContext, register
+from mocapnet.fill import lerp_fill
+from mocapnet.methods.registry import MethodContext, build_method, register
 from mocapnet.motion import Motion
+from mocapnet.nn.features import wrap_near
 from mocapnet.nn.variants import VARIANTS, accepts, method_of
 
-_HELP = "{what}; checkpoint: NAME=PATH, default: the shipped one for the skeleton; option mode=sequence|windowed"
+_HELP = (
+    "{what}; checkpoint: NAME=PATH, default: the shipped one for the skeleton; options mode=sequence|windowed, "
+    "tta=reverse|warp|reverse+warp (self-ensemble), blend=METHOD (mean with an angle method)"
+)
+_HELP_PAIR = "{what}; checkpoints: EBD,EBF, default: the shipped ones for the skeleton; option mode=sequence|windowed"
 _INDEX = Path(__file__).resolve().parents[1] / "checkpoints" / "index.json"
 
 
@@ -88,14 +106,104 @@ def _check_mode(mode: str) -> str:
     return mode
 
 
+#: Speeds (source frames per resampled frame) of the extra passes of ``tta=warp``, besides 1.
+WARP_RATES = (0.9, 1.1)
+TTA_PARTS = ("reverse", "warp")
+
+
+def tta_passes(tta: str | None) -> tuple[tuple[bool, float], ...]:
+    """The passes ``(time reversed, speed)`` of a ``tta`` option: None or ``"none"`` one plain pass;
+    ``"reverse"``, ``"warp"`` or ``"reverse+warp"`` add reversed and/or ``WARP_RATES`` copies. The plain pass
+    comes first. ValueError naming the parts for anything else."""
+    parts = [] if tta in (None, "none") else str(tta).split("+")
+    if any(p not in TTA_PARTS for p in parts) or len(set(parts)) != len(parts):
+        raise ValueError(f"tta must be none or a '+'-joined set of {', '.join(TTA_PARTS)}, got {tta!r}")
+    rates = (1.0, *WARP_RATES) if "warp" in parts else (1.0,)
+    directions = (False, True) if "reverse" in parts else (False,)
+    return tuple((rev, rate) for rev in directions for rate in rates)
+
+
+def warp_positions(n_frames: int, rate: float) -> np.ndarray:
+    """Fractional source frames ``[L]`` of a clip of ``n_frames`` played at ``rate`` × its speed (``rate`` < 1:
+    slower, more frames): ``L = round((T-1)/rate) + 1`` evenly spaced positions from 0 to ``T-1``, so both
+    ends are kept exactly."""
+    length = max(2, int(round((n_frames - 1) / rate)) + 1)
+    return np.linspace(0.0, n_frames - 1.0, length)
+
+
+def augmented_pass(
+    clean: Callable[[np.ndarray, np.ndarray], np.ndarray],
+    channels: np.ndarray,
+    mask: np.ndarray,
+    idx: np.ndarray,
+    reverse: bool,
+    rate: float,
+) -> np.ndarray:
+    """Scored channels ``[T, C_s]`` (degrees) of ``clean(channels', mask') -> [T', C]`` run on a transformed copy
+    of ``channels [T, C]`` / ``mask [T, C]``, transformed back: time-reversed when ``reverse``; resampled to
+    ``rate`` × speed when ``rate != 1`` (gaps filled linearly first, channels unwrapped and interpolated; a
+    resampled sample is missing when either source neighbour is), the output unwrapped and resampled back."""
+    if reverse:
+        channels, mask = channels[::-1], mask[::-1]
+    if rate != 1.0 and len(channels) > 2:
+        from mocapnet.nn.data import resample
+
+        positions = warp_positions(len(channels), rate)
+        filled = np.unwrap(lerp_fill(channels, mask), period=360.0, axis=0)
+        out = clean(resample(filled, positions), resample(mask.astype(np.float64), positions) > 0)[:, idx]
+        back = np.arange(len(channels)) * (len(positions) - 1) / (len(channels) - 1)
+        out = resample(np.unwrap(out, period=360.0, axis=0), back)
+    else:
+        out = clean(channels, mask)[:, idx]
+    return out[::-1] if reverse else out
+
+
+def tta_mean(outputs: Sequence[np.ndarray]) -> np.ndarray:
+    """Circular mean (degrees) of same-shaped arrays: each wrapped to within 180° of the first, then averaged,
+    so the result stays on the first one's branch."""
+    ref = outputs[0]
+    return np.mean([wrap_near(o, ref) for o in outputs], axis=0)
+
+
+def self_ensemble(
+    clean: Callable[[np.ndarray, np.ndarray], np.ndarray],
+    channels: np.ndarray,
+    mask: np.ndarray,
+    idx: np.ndarray,
+    passes: Sequence[tuple[bool, float]],
+) -> np.ndarray:
+    """``clean(channels [T, C], mask [T, C]) -> [T, C]`` averaged over ``passes`` (``tta_passes``; the first
+    plain) on the scored channels ``idx``: ``[T, C]``, the other channels as the plain pass leaves them."""
+    result = clean(channels, mask)
+    if len(passes) > 1:
+        extra = [augmented_pass(clean, channels, mask, idx, rev, rate) for rev, rate in passes[1:]]
+        result[:, idx] = tta_mean([result[:, idx], *extra])
+    return result
+
+
+def _blend_partner(method: str, blend: str | None, context: MethodContext) -> Callable | None:
+    """The angle method ``blend`` names, built with ``context`` (None when not asked for); ValueError for a
+    gap filler (EBD) or a method that is not in the angle space."""
+    if blend is None:
+        return None
+    if method == "ebd":
+        raise ValueError("ebd: blend is for the denoisers (EBF variants, bf, nn), not for gap filling")
+    return build_method(str(blend), context, space="angles").clean
+
+
 def _single(method: str):
     def factory(
         context: MethodContext,
         checkpoints: Sequence[str] | str = (),
         mode: str = "sequence",
         limit: float | None = None,
+        tta: str | None = None,
+        blend: str | None = None,
     ):
-        """``limit``: EBF's self-check factor (``infer.limit_change``; default: the checkpoint's, 0: off)."""
+        """``limit``: EBF's self-check factor (``infer.limit_change``; default: the checkpoint's, 0: off).
+        ``tta``: the self-ensemble (``tta_passes``). ``blend``: an angle method whose output is averaged with
+        the network's (weight 1/2, on the circle) — a blend, reported under its own method string."""
+        from mocapnet.nn.features import scored_index
         from mocapnet.nn.infer import clean_channels
 
         checkpoints = _paths(checkpoints)
@@ -105,10 +213,24 @@ def _single(method: str):
         _check_mode(mode)
         if limit is not None and not (isinstance(limit, (int, float)) and limit >= 0):
             raise ValueError(f"{method}: limit must be a number >= 0, got {limit!r}")
+        try:
+            passes = tta_passes(tta)
+        except ValueError as exc:
+            raise ValueError(f"{method}: {exc}") from None
+        partner = _blend_partner(method, blend, context)
 
         def clean(noisy: Motion, mask: np.ndarray) -> np.ndarray:
             model = resolve(noisy)
-            return clean_channels(model, noisy.channels, mask, noisy.skeleton, noisy.fps, mode, change_limit=limit)
+            sk, fps = noisy.skeleton, noisy.fps
+
+            def once(channels: np.ndarray, gaps: np.ndarray) -> np.ndarray:
+                return clean_channels(model, channels, gaps, sk, fps, mode, change_limit=limit)
+
+            idx = scored_index(sk)
+            out = self_ensemble(once, noisy.channels, mask, idx, passes)
+            if partner is not None:
+                out[:, idx] = tta_mean([out[:, idx], partner(noisy, mask)[:, idx]])
+            return out
 
         return clean
 
@@ -121,7 +243,7 @@ for _name, _what in _WHAT.items():
     register(_name, "angles", help=_HELP.format(what=_what))(_single(_name))
 
 
-@register("ebd+ebf", "angles", help=_HELP.format(what="EBD fills gaps, then EBF denoises; checkpoints: EBD,EBF"))
+@register("ebd+ebf", "angles", help=_HELP_PAIR.format(what="EBD fills gaps, then EBF denoises"))
 def _ebd_ebf(context: MethodContext, checkpoints: Sequence[str] | str = (), mode: str = "sequence"):
     from mocapnet.nn.infer import clean_channels
 

@@ -1,0 +1,146 @@
+"""Test-time augmentation and blending of the learned cleaners (``mocapnet.methods.neural``: options ``tta``
+and ``blend``), with tiny checkpoints on the shipped sample clip."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from mocapnet.corrupt import corrupt_motion
+from mocapnet.methods.neural import augmented_pass, tta_mean, tta_passes, warp_positions
+from mocapnet.methods.registry import build_method
+from mocapnet.motion import Motion
+from mocapnet.nn.features import root_angular_velocity, scored_index
+from mocapnet.nn.infer import clean_channels, load_model
+
+from .test_neural_methods import save
+
+
+@pytest.fixture
+def clip(sample: Motion) -> Motion:
+    return sample.with_channels(sample.channels[:200])
+
+
+@pytest.fixture
+def ebf_path(clip, tiny, tmp_path) -> str:
+    return save(tiny("ebf-free", clip), tmp_path / "ebf.ckpt")
+
+
+def noisy_copy(clip: Motion, corruption: str = "angular-0.5", seed: int = 0) -> tuple[Motion, np.ndarray]:
+    noisy, mask = corrupt_motion(clip, corruption, np.random.default_rng(seed))
+    return clip.with_channels(noisy), mask
+
+
+def circular_close(a: np.ndarray, b: np.ndarray, atol: float) -> None:
+    """``a`` and ``b`` equal up to whole turns (degrees)."""
+    np.testing.assert_allclose((a - b + 180.0) % 360.0 - 180.0, 0.0, atol=atol)
+
+
+def test_tta_option_parses_into_passes():
+    assert tta_passes(None) == tta_passes("none") == ((False, 1.0),)
+    assert tta_passes("reverse") == ((False, 1.0), (True, 1.0))
+    assert tta_passes("warp") == ((False, 1.0), (False, 0.9), (False, 1.1))
+    both = tta_passes("reverse+warp")
+    assert len(both) == 6 and both[0] == (False, 1.0) and set(both) == set(tta_passes("warp+reverse"))
+    for bad in ("flip", "reverse+reverse", "reverse,warp", ""):
+        with pytest.raises(ValueError, match="tta must be"):
+            tta_passes(bad)
+
+
+def test_bad_tta_and_blend_options_are_refused(clip, tiny, tmp_path, ebf_path):
+    with pytest.raises(ValueError, match="ebf: tta must be"):
+        build_method(f"ebf={ebf_path}:tta=flip")
+    with pytest.raises(KeyError, match="unknown method 'nope'"):
+        build_method(f"ebf={ebf_path}:blend=nope")
+    ebd = save(tiny("ebd", clip), tmp_path / "ebd.ckpt")
+    with pytest.raises(ValueError, match="blend is for the denoisers"):
+        build_method(f"ebd={ebd}:blend=gaussian-58ms")
+
+
+def test_reversed_clip_has_the_negated_root_angular_velocity(clip):
+    """The reversed pass's root input: turning from frame t to t-1 is the turn from t-1 to t undone, so the
+    reversed clip's angular velocity at s is minus the original's at T-s (frame 0 copies frame 1)."""
+    forward = root_angular_velocity(clip.skeleton, clip.channels, clip.fps)
+    backward = root_angular_velocity(clip.skeleton, clip.channels[::-1], clip.fps)
+    assert np.abs(forward).max() > 0.1
+    np.testing.assert_allclose(backward[1:], -forward[::-1][:-1], atol=1e-9)
+
+
+def test_reverse_tta_is_the_mean_of_both_directions(clip, ebf_path):
+    noisy, mask = noisy_copy(clip, "noise+gaps", seed=1)
+    out = build_method(f"ebf={ebf_path}:tta=reverse").clean(noisy, mask)
+    model, sk = load_model(ebf_path), clip.skeleton
+    plain = clean_channels(model, noisy.channels, mask, sk, clip.fps)
+    backward = clean_channels(model, noisy.channels[::-1], mask[::-1], sk, clip.fps)[::-1]
+    idx = scored_index(sk)
+    assert out.shape == clip.channels.shape and np.isfinite(out).all()
+    circular_close(out[:, idx], tta_mean([plain[:, idx], backward[:, idx]]), atol=1e-9)
+    assert np.abs(out[:, idx] - plain[:, idx]).max() > 1e-3  # the reversed pass is not the plain one
+    unscored = ~sk.scored_mask
+    np.testing.assert_array_equal(out[:, unscored], plain[:, unscored])
+    observed = ~mask[:, unscored]
+    np.testing.assert_array_equal(out[:, unscored][observed], noisy.channels[:, unscored][observed])
+
+
+@pytest.mark.parametrize("tta", ["reverse", "reverse+warp"])
+def test_reverse_tta_is_time_symmetric(clip, ebf_path, tta):
+    """With the reversed pass, cleaning a reversed clip gives the cleaned clip reversed, and a palindromic clip
+    (one that reads the same backwards) comes out palindromic."""
+    clean = build_method(f"ebf={ebf_path}:tta={tta}").clean
+    noisy, mask = noisy_copy(clip)
+    out = clean(noisy, mask)
+    out_reversed = clean(noisy.with_channels(noisy.channels[::-1]), mask[::-1])
+    circular_close(out_reversed[::-1], out, atol=1e-6)
+    palindrome = np.concatenate([noisy.channels, noisy.channels[-2::-1]])
+    out = clean(noisy.with_channels(palindrome), np.zeros(palindrome.shape, dtype=bool))
+    circular_close(out[::-1], out, atol=1e-6)
+    plain = build_method(f"ebf={ebf_path}").clean  # alone, the network is not time-symmetric
+    flipped = plain(noisy.with_channels(noisy.channels[::-1]), mask[::-1])[::-1]
+    assert np.abs(flipped - plain(noisy, mask)).max() > 1e-3
+
+
+def test_warp_pass_round_trips_across_the_wrap(clip):
+    """A warped pass of a cleaner that changes nothing gives its input back: ends kept exactly, channels
+    crossing ±180° unwrapped before interpolation (a ramp is interpolated exactly)."""
+    for n, rate in ((200, 0.9), (200, 1.1), (7, 0.9), (3, 1.1)):
+        positions = warp_positions(n, rate)
+        assert positions[0] == 0.0 and positions[-1] == n - 1
+        assert len(positions) == max(2, round((n - 1) / rate) + 1)
+    t = np.arange(120, dtype=np.float64)[:, None]
+    ramps = np.concatenate([170.0 + 0.5 * t, -3.0 * t, 10.0 + 0.0 * t], axis=1)
+    ramps = (ramps + 180.0) % 360.0 - 180.0  # the first crosses +180 → -180 at frame 20
+    mask = np.zeros(ramps.shape, dtype=bool)
+    idx = np.arange(3)
+    seen = []
+
+    def identity(channels: np.ndarray, gaps: np.ndarray) -> np.ndarray:
+        seen.append(len(channels))
+        return channels.copy()
+
+    for reverse in (False, True):
+        for rate in (0.9, 1.1):
+            circular_close(augmented_pass(identity, ramps, mask, idx, reverse, rate), ramps, atol=1e-9)
+    assert seen == [round(119 / 0.9) + 1, round(119 / 1.1) + 1] * 2
+
+
+def test_warp_tta_keeps_shape_and_unscored_channels(clip, ebf_path):
+    noisy, mask = noisy_copy(clip, "noise+gaps", seed=2)
+    out = build_method(f"ebf={ebf_path}:tta=warp").clean(noisy, mask)
+    plain = build_method(f"ebf={ebf_path}").clean(noisy, mask)
+    assert out.shape == clip.channels.shape and np.isfinite(out).all()
+    unscored = ~clip.skeleton.scored_mask
+    np.testing.assert_array_equal(out[:, unscored], plain[:, unscored])
+    idx = scored_index(clip.skeleton)
+    change = np.abs((out[:, idx] - plain[:, idx] + 180.0) % 360.0 - 180.0)
+    assert 1e-4 < change.max() < 90.0
+
+
+def test_blend_is_the_circular_mean_with_the_partner(clip, ebf_path):
+    noisy, mask = noisy_copy(clip)
+    out = build_method(f"ebf={ebf_path}:blend=gaussian-58ms").clean(noisy, mask)
+    net = build_method(f"ebf={ebf_path}").clean(noisy, mask)
+    smooth = build_method("gaussian-58ms").clean(noisy, mask)
+    idx = scored_index(clip.skeleton)
+    circular_close(out[:, idx], tta_mean([net[:, idx], smooth[:, idx]]), atol=1e-9)
+    unscored = ~clip.skeleton.scored_mask
+    np.testing.assert_array_equal(out[:, unscored], net[:, unscored])
