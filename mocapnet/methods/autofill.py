@@ -40,6 +40,7 @@ import os
 import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -165,21 +166,19 @@ class _Candidates:
         self.rigid_options = rigid_options
         self.max_residual_cm = max_residual_cm
         self._whole: dict[str, np.ndarray] = {}
-        self._spread: np.ndarray | None = None
-        self._low = self._high = np.empty(0)
 
-    def spread(self) -> np.ndarray:
-        """Distance spread ``[M, M]`` (cm) of every marker pair, computed once."""
-        if self._spread is None:
-            self._spread, self._low, self._high = distance_stats(self.points, self.visible)
-        return self._spread
+    @cached_property
+    def distances(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(spread, low, high)`` ``[M, M]`` (cm) of every marker pair (``rigid.distance_stats``), computed
+        once."""
+        return distance_stats(self.points, self.visible)
 
     def bounds_violation(self, fill: np.ndarray, marker: int, start: int, stop: int) -> float:
         """How far (cm) a fill ``[stop - start, 3]`` of ``marker`` leaves the range of distances measured
         between it and each other marker (widened by ``BOUND_SLACK`` of its width), where that marker is
         visible: the second largest over the markers (0: never)."""
-        self.spread()
-        low, high = self._low[marker], self._high[marker]
+        _, low, high = self.distances
+        low, high = low[marker], high[marker]
         near = np.isfinite(low)
         near[marker] = False
         if not near.any():
@@ -220,7 +219,7 @@ class _Candidates:
             got = rigid_fill_gap(
                 self.points,
                 self.visible,
-                self.spread(),
+                self.distances[0],
                 marker,
                 start,
                 stop,
@@ -235,7 +234,7 @@ class _Candidates:
             return got.points, {"partners": labels, "fit_residual_cm": round(got.residual_cm, 3)}
         if name == "pca":
             max_std_cm = self.rigid_options["max_std_cm"]
-            if not len(rigid_partners(self.visible, self.spread(), marker, start, stop, max_std_cm=max_std_cm)):
+            if not len(rigid_partners(self.visible, self.distances[0], marker, start, stop, max_std_cm=max_std_cm)):
                 return None, {"reason": "no marker rigid with it stays in view (its segment is missing)"}
         fill = self.whole(name)[start:stop, marker]
         if not np.isfinite(fill).all():
@@ -365,7 +364,7 @@ def auto_fill(
 def _rigid_pieces(candidates: _Candidates, marker: int, start: int, stop: int, max_std_cm: float) -> list[tuple]:
     """Parts of the gap ``[start, stop)`` next to a measured edge through which three rigid partners stay
     visible (``[start, stop)`` pairs; the later piece is dropped where the two would overlap)."""
-    spread = candidates.spread()
+    spread = candidates.distances[0]
     visible = candidates.visible
     pieces = []
     if start > 0:
