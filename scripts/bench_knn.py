@@ -6,6 +6,7 @@ work is in ``mocapnet.evaluate.knn_bench``. Writes ``benchmarks/results/knn.md``
 
     nice -n 5 .venv/bin/python scripts/bench_knn.py --tune     # bandai2 fold 1 only
     nice -n 5 .venv/bin/python scripts/bench_knn.py            # the benchmark
+    nice -n 5 .venv/bin/python scripts/bench_knn.py --parts bandai1,speed   # rerun parts, keep the rest
     .venv/bin/python scripts/bench_knn.py --clips 2 --out /tmp/knn   # smoke run
 """
 
@@ -19,7 +20,7 @@ from pathlib import Path
 from mocapnet.corpus import data_root
 from mocapnet.evaluate import knn_bench
 from mocapnet.evaluate.benchmark import REPO
-from mocapnet.evaluate.results import provenance, write_results
+from mocapnet.evaluate.results import provenance, read_json, write_results
 from mocapnet.threads import pin_threads
 
 
@@ -31,6 +32,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--tune", action="store_true", help="score setting variations on bandai2 fold 1 instead")
     grids = ", ".join(knn_bench.GRIDS)
     parser.add_argument("--grid", choices=knn_bench.GRIDS, default="main", help=f"--tune: variations ({grids})")
+    parser.add_argument(
+        "--parts",
+        default=",".join(knn_bench.PARTS),
+        help=f"comma-separated parts to run (of {','.join(knn_bench.PARTS)}; default all); the other parts' results "
+        "are kept from the knn.json.gz already in --out",
+    )
     args = parser.parse_args(argv)
     pin_threads(1)
     report = provenance(argv)
@@ -47,10 +54,18 @@ def main(argv: list[str] | None = None) -> int:
         stem = "knn_tuning" + ("" if args.grid == "main" else f"_{args.grid}")
         write_results(args.out / stem, report, knn_bench.tune_markdown(rows, report), json_suffix=".json.gz")
         return 0
-    report.update(n_clips=args.clips, repeats=args.repeats, speed=knn_bench.bench_speed(10))
-    report.update(bvh=knn_bench.bench_bvh(args.clips, args.repeats), c3d=knn_bench.bench_c3d(root, args.repeats))
-    report["wall_s"] = time.time() - started
-    write_results(args.out / "knn", report, knn_bench.markdown(report), json_suffix=".json.gz")
+    parts = [p for p in args.parts.split(",") if p]
+    previous_path = args.out / "knn.json.gz"
+    previous = read_json(previous_path) if previous_path.exists() else None
+    try:
+        knn_bench.check_parts(parts, previous is not None)  # before the work, not after it
+        fresh = knn_bench.run_parts(parts, root, args.clips, args.repeats)
+        run = knn_bench.run_record(report, args.clips, args.repeats, time.time() - started)
+        merged = knn_bench.merge_parts(previous, fresh, parts, run)
+    except ValueError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    write_results(args.out / "knn", merged, knn_bench.markdown(merged), json_suffix=".json.gz")
     return 0
 
 

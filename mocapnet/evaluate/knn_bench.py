@@ -17,6 +17,7 @@
 
 from __future__ import annotations
 
+import hashlib
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -50,6 +51,8 @@ C3D_FILES = (
 C3D_DATABASE_ONLY = ("c3d/cmu/01_01.c3d", "c3d/cmu/02_01.c3d")  # 02_01 is too short for a 4 s gap
 C3D_METHODS = ("knn", "pca", "lerp", "spline", "gapfill-rbt")
 TIMING_GAPS = (1.0, 2.0, 4.0, 8.0)
+BVH_CORPORA = ("bandai2", "bandai1")
+PARTS = (*BVH_CORPORA, "c3d", "speed")  # what ``run_parts`` can (re)run on its own
 DONE_WHEN = ("segment-gap:left-arm:1", "segment-gap:left-arm:4", "segment-gap:legs:2")
 TUNE_CORRUPTIONS = ("segment-gap:left-arm:1", "segment-gap:left-arm:4", "segment-gap:legs:1", "segment-gap:legs:2")
 TUNE_VARIANTS: tuple[dict, ...] = (
@@ -88,7 +91,6 @@ TWIST_VARIANTS: tuple[dict, ...] = (
     {"knn_twist": True, "limb_gate": 10.0},
     {"knn_twist": True, "limb_gate": 20.0},
     {"knn_twist": True, "k": 32},
-    {"knn_twist": True, "margin_s": 0.5},
     {"knn_twist": True, "distance_gain": 9.0},
 )
 GRIDS = {"main": TUNE_VARIANTS, "plateau": PLATEAU_VARIANTS, "twist": TWIST_VARIANTS}
@@ -101,11 +103,12 @@ def evenly(items: Sequence, n: int) -> list:
     return [items[i] for i in np.unique(np.linspace(0, len(items) - 1, min(n, len(items))).round().astype(int))]
 
 
-def bench_bvh(n_clips: int, repeats: int) -> list[dict]:
-    """Rows of ``evaluate_angles`` (plus ``corpus``) for bandai2 and bandai1 fold 0, ``n_clips`` evenly spaced
-    test clips of at least 3 s each (a clip too short for a gap is skipped for that gap), every corruption."""
+def bench_bvh(n_clips: int, repeats: int, corpora: Sequence[str] = BVH_CORPORA) -> list[dict]:
+    """Rows of ``evaluate_angles`` (plus ``corpus``) for ``corpora`` (bandai2, bandai1) fold 0, ``n_clips`` evenly
+    spaced test clips of at least 3 s each (a clip too short for a gap is skipped for that gap), every
+    corruption."""
     rows: list[dict] = []
-    for name in ("bandai2", "bandai1"):
+    for name in corpora:
         corpus = load_corpus(name, progress=False)
         train, _, test = corpus.split(0)
         clips = evenly([m for m in test if m.duration >= 3.0], n_clips)
@@ -174,8 +177,81 @@ def bench_speed(n_clips: int) -> dict:
             "query_ms": 1e3 * search_s / frames}  # fmt: skip
 
 
+def check_parts(parts: Sequence[str], have_previous: bool) -> None:
+    """Raise ValueError unless ``parts`` is a non-empty selection of ``PARTS`` and, when it is not all of them,
+    an earlier report holds the rest (``have_previous``)."""
+    if set(parts) - set(PARTS) or not parts:
+        raise ValueError(f"bench_knn: parts must be among {', '.join(PARTS)}; got {', '.join(parts) or 'none'}")
+    rest = [p for p in PARTS if p not in parts]
+    if rest and not have_previous:
+        raise ValueError(f"bench_knn: no earlier report to take {', '.join(rest)} from")
+
+
+def run_parts(parts: Sequence[str], root: Path, n_clips: int, repeats: int) -> dict:
+    """The benchmark's ``parts`` (of ``PARTS``): ``{"bvh": rows, "c3d": rows, "speed": dict}``, only the keys
+    asked for (``bvh`` when a corpus is)."""
+    check_parts(parts, True)
+    out: dict = {}
+    if "speed" in parts:
+        out["speed"] = bench_speed(10)
+    corpora = [c for c in BVH_CORPORA if c in parts]
+    if corpora:
+        out["bvh"] = bench_bvh(n_clips, repeats, corpora)
+    if "c3d" in parts:
+        out["c3d"] = bench_c3d(root, repeats)
+    return out
+
+
+def run_record(provenance: dict, n_clips: int, repeats: int, wall_s: float) -> dict:
+    """One run's entry of a report's ``runs``: ``provenance`` (``results.provenance``), the clip count,
+    repeats, wall time (s) and the joint-space knn defaults it ran with."""
+    return {**provenance, "n_clips": n_clips, "repeats": repeats, "wall_s": wall_s,
+            "knn_settings": repr(WindowSettings(**ANGLE_DEFAULTS))}  # fmt: skip
+
+
+def merge_parts(previous: dict | None, fresh: dict, parts: Sequence[str], run: dict) -> dict:
+    """A whole report from ``fresh`` (``run_parts`` of ``parts``) and, for the other parts, ``previous`` (an
+    earlier report; None when every part was run). ``runs`` lists, per run whose results the report still
+    holds, its ``parts`` and ``run`` (provenance, ``wall_s``, ``n_clips``, ``repeats``). Raises ValueError when
+    a part is neither run nor in ``previous``."""
+    check_parts(parts, previous is not None)
+    rest = [p for p in PARTS if p not in parts]
+    prev = previous or {}
+    earlier = prev.get("runs") or ([{**{k: prev[k] for k in ("command", "git_commit", "machine", "wall_s",
+                                                            "n_clips", "repeats")}, "parts": list(PARTS)}]
+                                   if rest else [])  # fmt: skip
+    runs = [{**r, "parts": [p for p in r["parts"] if p in rest]} for r in earlier]
+    runs = [r for r in runs if r["parts"]] + [{**run, "parts": list(parts)}]
+    bvh = [r for r in prev.get("bvh", []) if r["corpus"] in rest] + fresh.get("bvh", [])
+    report = {**run, "runs": runs, "bvh": bvh}
+    for key in ("c3d", "speed"):
+        report[key] = fresh[key] if key in parts else prev[key]
+    return report
+
+
 def variant_name(variant: dict) -> str:
     return ", ".join(f"{k}={v}" for k, v in variant.items()) or "defaults"
+
+
+class RepeatSearcher(Searcher):
+    """A ``Searcher`` that answers a query it has answered before from memory: tuning variants that change only
+    the blend ask the same windows again (same results, one search)."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self._answers: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+
+    def windows(
+        self, feats: np.ndarray, weights: np.ndarray, offsets: np.ndarray, length: int, allowed: np.ndarray, k: int
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """``Searcher.windows``, remembered by a hash of every argument."""
+        digest = hashlib.sha1(f"{length},{k}".encode())
+        for a in (feats, weights, offsets, allowed):
+            digest.update(str(a.dtype).encode() + np.ascontiguousarray(a).tobytes())
+        key = digest.hexdigest()
+        if key not in self._answers:
+            self._answers[key] = super().windows(feats, weights, offsets, length, allowed, k)
+        return self._answers[key]
 
 
 def tune(n_clips: int, variants: Sequence[dict] = TUNE_VARIANTS) -> list[dict]:
@@ -186,7 +262,7 @@ def tune(n_clips: int, variants: Sequence[dict] = TUNE_VARIANTS) -> list[dict]:
     train, _, val = corpus.split(1)
     clips = evenly([m for m in val if m.duration >= 7.0], n_clips)
     db = cached_database("bandai2")
-    searcher = Searcher(db.points, db.clip, db.describe())
+    searcher = RepeatSearcher(db.points, db.clip, db.describe())
     held_out = {m.name for m in val}  # fold 1
 
     def knn(settings: WindowSettings, out_mode: bool):
@@ -320,14 +396,18 @@ def markdown(report: dict) -> str:
     lines = [
         "# Data-driven gap filling benchmark (`knn`)",
         "",
-        f"- command: `{report['command']}`; git commit `{report['git_commit']}`; {report['machine']}; "
-        f"wall time {report['wall_s']:.0f} s",
+        *(
+            f"- {', '.join(r['parts'])}: command `{r['command']}`; git commit `{r['git_commit']}`; {r['machine']}; "
+            f"wall time {r['wall_s']:.0f} s; BVH knn settings: `{r.get('knn_settings', 'the defaults at that commit')}`"
+            for r in report["runs"]
+        ),
         f"- BVH: up to {report['n_clips']} evenly spaced fold-0 test clips of at least 3 s per corpus, "
         f"{report['repeats']} repeat(s); database {speed['database']} (for bandai2 fold 0 only its training "
         "folds 2-4; for bandai1 all of it). Metrics of PROTOCOL.md; ratios in the overview tables are to lerp, "
         "in the per-corruption tables to the better of lerp and spline (the one reference rule).",
-        f"- knn settings (BVH): `{WindowSettings(**ANGLE_DEFAULTS)}`, chosen on bandai2 fold 1 "
-        "(`knn_tuning.md`, then `knn_tuning_plateau.md`). C3D knn: the registered default (`search=energy`).",
+        f"- knn settings (BVH), the defaults now: `{WindowSettings(**ANGLE_DEFAULTS)}`, chosen on bandai2 fold 1 "
+        "(`knn_tuning.md`, then `knn_tuning_plateau.md`, then `knn_tuning_twist.md`). C3D knn: the registered "
+        "default (`search=energy`).",
         "",
         "## Done when (issue 12)",
         "",

@@ -13,6 +13,7 @@ from mocapnet.corpus import PACKAGE_DATA, list_bvh
 from mocapnet.corrupt import corrupt_markers, corrupt_motion, motion_markers
 from mocapnet.io.bvh import read_bvh, write_bvh
 from mocapnet.io.c3d import read_c3d
+from mocapnet.kinematics import joint_positions
 from mocapnet.methods import MethodContext, build_method
 from mocapnet.methods.baselines import lerp_fill
 from mocapnet.methods.knn import (
@@ -30,7 +31,7 @@ from mocapnet.methods.knn import (
     normalise,
     upsample,
 )
-from mocapnet.methods.knn_angles import fill_angles, limb_rms, wrap
+from mocapnet.methods.knn_angles import ANGLE_DEFAULTS, fill_angles, limb_rms, pca_angles, points_visible, wrap
 from mocapnet.methods.knn_database import SkeletonDatabase, cached_database, default_corpus
 from mocapnet.methods.knn_window import Searcher, WindowSettings, estimate_run
 from mocapnet.methods.pca import pca_fill
@@ -452,3 +453,45 @@ def test_limb_distance_measures_the_missing_points_where_they_are_observed() -> 
     assert np.isclose(limb_rms(stored, feats, *args, w, np.array([1.0]), (4, 6)), 2.0)
     w[:, 2] = 0.0  # never observed in the window: no limb distance
     assert np.isnan(limb_rms(stored, feats, *args, w, np.array([1.0]), (4, 6)))
+
+
+def _fallback(noisy: Motion, mask: np.ndarray, twist: np.ndarray) -> np.ndarray:
+    """The PCA fallback of ``fill_angles`` with its IK's twist taken from ``twist [T, C]``."""
+    sk = noisy.skeleton
+    joint_missing = np.stack([mask[:, sk.joint_channels(j)].any(axis=1) for j in range(sk.n_joints)], axis=1)
+    return pca_angles(noisy, mask, twist, points_visible(sk, joint_missing))
+
+
+def test_limb_gate_falls_back_to_pca_and_keeps_the_truth(parts) -> None:
+    """A gate below every neighbour's limb distance gives the PCA fallback itself; with the truth in the
+    database the limb distance is 0, nothing is gated and the fill stays exact, twist option on or off."""
+    truth = parts[1]
+    noisy, mask = _segment_gap(truth, "segment-gap:left-arm:1", seed=4)
+    other = SkeletonDatabase.from_motions([parts[0], parts[2]])
+    gated, stats = fill_angles(noisy, mask, other, WindowSettings(**{**ANGLE_DEFAULTS, "limb_gate": 1e-6}))
+    assert min(stats.limb_distance) > 1e-6
+    scored = mask & truth.skeleton.scored_mask[None]
+    assert np.allclose(gated[scored], _fallback(noisy, mask, lerp_fill(noisy.channels, mask))[scored], atol=1e-9)
+    db = SkeletonDatabase.from_motions([parts[0], truth.with_channels(truth.channels), parts[2]])
+    db.names = ("part0", "copy of the truth", "part1800")
+    for twist in (False, True):
+        settings = WindowSettings(**{**ANGLE_DEFAULTS, "limb_gate": 1.0, "knn_twist": twist})
+        out, _ = fill_angles(noisy, mask, db, settings)
+        assert _gap_rms(out, truth.channels, mask) < 1e-3
+
+
+def test_knn_twist_changes_the_fallback_angles_not_its_positions(parts) -> None:
+    """With the blend all fallback (speed ~0), ``knn_twist`` gives the PCA fallback whose IK takes its twist
+    from the kNN estimate: other angles than with the twist of interpolation, the same joint positions."""
+    truth = parts[1]
+    noisy, mask = _segment_gap(truth, "segment-gap:left-arm:1", seed=4)
+    db = SkeletonDatabase.from_motions([parts[0], parts[2]])
+    knn_only, _ = fill_angles(noisy, mask, db, WindowSettings(**{**ANGLE_DEFAULTS, "speed": None}))
+    settings = {**ANGLE_DEFAULTS, "speed": 1e-9}
+    plain, _ = fill_angles(noisy, mask, db, WindowSettings(**settings))
+    twisted, _ = fill_angles(noisy, mask, db, WindowSettings(**settings, knn_twist=True))
+    scored = mask & truth.skeleton.scored_mask[None]
+    assert np.allclose(twisted[scored], _fallback(noisy, mask, knn_only)[scored], atol=1e-6)
+    assert np.abs(wrap(twisted - plain))[scored].max() > 1.0  # the twist differs
+    pos = [joint_positions(noisy.with_channels(c), end_sites=True) for c in (plain, twisted)]
+    assert np.abs(pos[0] - pos[1]).max() < 1e-6
