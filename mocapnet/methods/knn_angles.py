@@ -29,8 +29,10 @@ For every *gap* (maximal run of frames in which some scored channel is missing):
    the rest of the body. The fallback f is linear interpolation or (default) the clip's own PCA fill
    (Gløersen & Federolf on the joint positions, back to angles by IK, ``pca_angles``): f next to the
    observed frames, where the neighbours disagree, or where nothing in the database moves the limb alike
-   (motion the database lacks); the database where they agree. With the truth in the database σ = 0 and
-   the fill is exact.
+   (motion the database lacks); the database where they agree. Positions cannot fix a joint's twist about
+   a bone with one child; the IK keeps the twist of its reference, linear interpolation or, with
+   ``knn_twist``, the kNN estimate (of the gaps not gated). With ``limb_gate``, a gap whose limb distance
+   exceeds it gets β = 0 (f alone). With the truth in the database σ = 0 and the fill is exact.
 
 Observed samples and unscored channels are never changed; missing unscored channels are interpolated.
 """
@@ -245,7 +247,7 @@ def angle_filler(
     "angles",
     help="kNN in joint space from a large clean database (default: the largest corpus of the skeleton, cached), "
     "offset-corrected and blended with the clip's PCA fill; options k, margin_s, near_gain, speed, offset, "
-    "query_hz, distance_gain, own, fallback, max_weight, limb_distance, plateau_s, database",
+    "query_hz, distance_gain, own, fallback, max_weight, limb_distance, plateau_s, knn_twist, limb_gate, database",
 )
 def _knn_angles(
     context: MethodContext, database: str | None = None, **options: Any
