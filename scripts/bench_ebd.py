@@ -12,11 +12,11 @@ settings on bandai2 fold 1 (the validation fold; bandai1 is never tuned on) with
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
 from mocapnet.evaluate import gap_bins
+from mocapnet.evaluate.results import write_results
 from mocapnet.threads import pin_threads
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -41,9 +41,7 @@ def main() -> None:
         else gap_bins.test(args.corpus, args.clips, args.repeats or 5, args.checkpoint)
     )
     result["command"] = command
-    out.with_suffix(".json").write_text(json.dumps(result, indent=1, default=float) + "\n")
-    out.with_suffix(".md").write_text(gap_bins.tune_markdown(result) if args.tune else gap_bins.markdown(result))
-    print(out.with_suffix(".md").read_text())
+    write_results(out, result, gap_bins.tune_markdown(result) if args.tune else gap_bins.markdown(result), indent=1)
 
 
 if __name__ == "__main__":

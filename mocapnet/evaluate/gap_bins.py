@@ -18,6 +18,7 @@ import numpy as np
 from mocapnet.corpus import load_corpus
 from mocapnet.corrupt import corrupt_motion, seed_for
 from mocapnet.evaluate.metrics import gap_err_deg, wrapped_diff
+from mocapnet.evaluate.results import markdown_table
 from mocapnet.fill import mask_groups, runs
 from mocapnet.motion import Motion
 
@@ -208,18 +209,21 @@ def test(corpus: str, n_clips: int | None, repeats: int, checkpoint: str | None 
 
 def markdown(result: dict) -> str:
     """``test``'s result as Markdown tables."""
-    names, best = result["names"], lambda r: min(r[n] for n in REFERENCES)
+    names = result["names"]
+
+    def scores(r: dict) -> list[str]:  # each filler's error, then ebd's ratio to the better reference
+        return [*(f"{r[n]:.3f}" for n in names), f"{r['ebd'] / min(r[n] for n in REFERENCES):.3f}"]
+
     lines = [f"# EBD gap filling, {result['corpus']} fold 0\n", f"Command: `{result['command']}`\n"]
-    lines += ["| corruption | clips × repeats | " + " | ".join(names) + " | ebd ÷ best of lerp, spline |"]
-    lines += ["|---" * (len(names) + 3) + "|"]
-    for r in result["headline"]:
-        cells = " | ".join(f"{r[n]:.3f}" for n in names)
-        lines.append(f"| {r['corruption']} | {r['clips']} × {r['repeats']} | {cells} | {r['ebd'] / best(r):.3f} |")
+    lines += markdown_table(
+        ["corruption", "clips × repeats", *names, "ebd ÷ best of lerp, spline"],
+        ([r["corruption"], f"{r['clips']} × {r['repeats']}", *scores(r)] for r in result["headline"]),
+    )
     lines += ["", "RMS gap error (°) per gap length in frames:", ""]
-    lines += ["| corruption | bin | gaps | " + " | ".join(names) + " | ebd ÷ best |", "|---" * (len(names) + 4) + "|"]
-    for b in result["bins"]:
-        cells = " | ".join(f"{b[n]:.3f}" for n in names)
-        lines.append(f"| {b['corruption']} | {b['bin']} | {b['gaps']} | {cells} | {b['ebd'] / best(b):.3f} |")
+    lines += markdown_table(
+        ["corruption", "bin", "gaps", *names, "ebd ÷ best"],
+        ([b["corruption"], b["bin"], b["gaps"], *scores(b)] for b in result["bins"]),
+    )
     return "\n".join(lines) + "\n"
 
 
@@ -228,9 +232,10 @@ def tune_markdown(result: dict) -> str:
     cols = list(result["scores"]["shipped"])
     lines = ["# EBD blend settings on bandai2 fold 1 (ratio to the better of lerp and spline)\n"]
     lines += [f"Command: `{result['command']}`; selected blend: {result['selected']}; self-check: {result['check']}\n"]
-    lines += ["| setting | fallbacks | worst | mean | " + " | ".join(cols) + " |", "|---" * (len(cols) + 4) + "|"]
+    rows = []
     for k, v in result["scores"].items():
-        vals = " | ".join(f"{v.get(c, float('nan')):.3f}" for c in cols)
         worst, mean = max(v.values()), np.mean(list(v.values()))
-        lines.append(f"| {k} | {result['fallbacks'].get(k, '—')} | {worst:.3f} | {mean:.3f} | {vals} |")
+        vals = (f"{v.get(c, float('nan')):.3f}" for c in cols)
+        rows.append([k, result["fallbacks"].get(k, "—"), f"{worst:.3f}", f"{mean:.3f}", *vals])
+    lines += markdown_table(["setting", "fallbacks", "worst", "mean", *cols], rows)
     return "\n".join(lines) + "\n"
