@@ -7,10 +7,26 @@ local translation in place of its offset.
 
 from __future__ import annotations
 
+from typing import TypeVar
+
 import numpy as np
 from scipy.spatial.transform import Rotation
 
 from mocapnet.motion import Markers, Motion, Skeleton
+
+#: A NumPy array or a torch tensor: ``%`` is the floor modulo of both (``np.remainder``, ``torch.remainder``),
+#: so the wrap formulas below serve the networks too without this module importing torch.
+Angles = TypeVar("Angles")
+
+
+def wrap_deg(deg: Angles) -> Angles:
+    """Angles (degrees, any shape) wrapped to ``[-180, 180)``."""
+    return (deg + 180.0) % 360.0 - 180.0
+
+
+def wrap_near(values: Angles, center: Angles) -> Angles:
+    """``values`` (degrees) moved by multiples of 360 into ``(center - 180, center + 180]`` (broadcast)."""
+    return center - wrap_deg(center - values)
 
 
 def rotation_sequence(skeleton: Skeleton, joint: int) -> tuple[str, np.ndarray]:
@@ -147,6 +163,8 @@ def matrix_to_euler(matrices: np.ndarray, seq: str, reference: np.ndarray | None
     ref = np.asarray(reference, dtype=np.float64)
 
     def near(a: np.ndarray) -> np.ndarray:
+        # ``ref + wrap_deg(a - ref)`` up to rounding (adding before subtracting 180 rounds twice); kept as it
+        # is so that IK, and every spatial-noise figure, stays bit for bit what it was.
         return ref + (a - ref + 180.0) % 360.0 - 180.0
 
     best = near(ang)

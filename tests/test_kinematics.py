@@ -1,7 +1,14 @@
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from mocapnet.kinematics import inverse_kinematics, joint_positions, matrix_to_euler, rest_positions
+from mocapnet.kinematics import (
+    inverse_kinematics,
+    joint_positions,
+    matrix_to_euler,
+    rest_positions,
+    wrap_deg,
+    wrap_near,
+)
 from mocapnet.motion import Skeleton
 
 
@@ -121,3 +128,14 @@ def test_geodesic_angle_is_accurate_at_every_size():
         step = Rotation.from_rotvec(axis / np.linalg.norm(axis, axis=1, keepdims=True) * angle_rad)
         got = geodesic_deg(a.as_matrix(), (a * step).as_matrix())
         np.testing.assert_allclose(got, np.degrees(angle_rad), rtol=1e-6, atol=1e-12)
+
+
+def test_wrap_deg_and_wrap_near_ranges():
+    x = np.array([-540.0, -180.0, -179.5, 0.0, 179.5, 180.0, 359.0, 720.25])
+    np.testing.assert_array_equal(wrap_deg(x), [-180.0, -180.0, -179.5, 0.0, 179.5, -180.0, -1.0, 0.25])
+    center = np.array([[10.0], [-170.0]])  # broadcast against x
+    near = wrap_near(x, center)
+    assert near.shape == (2, len(x))
+    assert ((near > center - 180.0) & (near <= center + 180.0)).all()
+    np.testing.assert_array_equal(np.round((near - x) / 360.0) * 360.0, near - x)  # moved by whole turns
+    np.testing.assert_array_equal(wrap_near(np.array([190.0, -170.0]), 10.0), [190.0, 190.0])  # c + 180 kept

@@ -6,13 +6,13 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from mocapnet.kinematics import geodesic_deg, global_transforms, local_rotations
+from mocapnet.kinematics import geodesic_deg, global_transforms, local_rotations, wrap_deg
 from mocapnet.motion import Motion
 
 
 def wrapped_diff(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """``a - b`` wrapped to [-180, 180) degrees."""
-    return (np.asarray(a) - np.asarray(b) + 180.0) % 360.0 - 180.0
+    return wrap_deg(np.asarray(a) - np.asarray(b))
 
 
 def angle_err_deg(cleaned: np.ndarray, truth: np.ndarray, scored: np.ndarray) -> float:

@@ -25,6 +25,7 @@ import lightning as L
 import numpy as np
 import torch
 
+from mocapnet.kinematics import wrap_deg
 from mocapnet.nn.features import MIN_SCALE_DEG, Normaliser
 
 #: Input normalisation modes (module docstring).
@@ -40,7 +41,7 @@ def clip_statistics(filled: torch.Tensor, angvel: torch.Tensor) -> dict[str, tor
     [..., 1, 3]`` RMS (at least 1e-3). The same formulas as ``features.Normaliser.fit`` on one clip."""
     rad = torch.deg2rad(filled)
     center = torch.rad2deg(torch.atan2(rad.sin().mean(-2, keepdim=True), rad.cos().mean(-2, keepdim=True)))
-    wrapped = torch.remainder(filled - center + 180.0, 360.0) - 180.0
+    wrapped = wrap_deg(filled - center)
     scale = wrapped.std(-2, unbiased=False, keepdim=True).clamp(min=MIN_SCALE_DEG)
     angvel_scale = angvel.square().mean(-2, keepdim=True).sqrt().clamp(min=1e-3)
     return {"center": center, "scale": scale, "angvel_scale": angvel_scale}
@@ -86,7 +87,7 @@ class CleanerModule(L.LightningModule, ABC):
         ±8 (so a pose far outside the training range cannot saturate the network). ``stats``: from
         ``input_stats`` (default: the corpus buffers)."""
         center, scale = (self.center, self.scale) if stats is None else (stats["center"], stats["scale"])
-        return ((torch.remainder(x - center + 180.0, 360.0) - 180.0) / scale).clamp(-8.0, 8.0)
+        return (wrap_deg(x - center) / scale).clamp(-8.0, 8.0)
 
     def angvel_features(self, angvel: torch.Tensor, stats: dict[str, torch.Tensor] | None = None) -> torch.Tensor:
         """Root angular velocity ``[..., 3]`` (rad/s) → scaled, clipped to ±8 (``stats`` as in ``normalise``)."""
@@ -116,7 +117,7 @@ class CleanerModule(L.LightningModule, ABC):
 
     def validation_step(self, batch: dict[str, torch.Tensor], batch_idx: int) -> None:
         pred = self.predict_batch(batch)
-        diff = torch.remainder(pred - batch["clean"] + 180.0, 360.0) - 180.0
+        diff = wrap_deg(pred - batch["clean"])
         _, sel = self.loss_terms(batch, pred)
         self._sse += float((diff**2 * sel).sum())
         self._count += int(sel.sum())

@@ -59,6 +59,7 @@ from mocapnet.corrupt import (
     spatial_noise,
 )
 from mocapnet.fill import gap_fill
+from mocapnet.kinematics import wrap_deg
 from mocapnet.motion import Motion, Skeleton
 from mocapnet.nn.base import clip_statistics
 from mocapnet.nn.features import (
@@ -205,7 +206,7 @@ def spatial_residual(motion: Motion, level_cm: float, rng: np.random.Generator) 
     every joint position causes through IK (``corrupt.spatial_noise``)."""
     idx = scored_index(motion.skeleton)
     diff = spatial_noise(motion, level_cm, rng)[:, idx] - motion.channels[:, idx]
-    return ((diff + 180.0) % 360.0 - 180.0).astype(np.float32)
+    return wrap_deg(diff).astype(np.float32)
 
 
 def as_batch(
@@ -233,7 +234,7 @@ def crop_statistics(clip: Normaliser, clean: np.ndarray, noisy: np.ndarray, rate
     """Statistics (``base.NORM_KEYS``, ``[1, ·]``) that a whole clip would show with a training crop's noise
     (module docstring): ``clip`` the clean clip's own ``Normaliser``, ``clean`` / ``noisy`` the crop ``[L, C_s]``
     (degrees), ``rate`` its time-warp rate."""
-    noise = (noisy - clean + 180.0) % 360.0 - 180.0
+    noise = wrap_deg(noisy - clean)
     scale = np.maximum(np.sqrt(clip.scale**2 + noise.var(0)), MIN_SCALE_DEG)
     return {
         "center": (clip.center + noise.mean(0))[None],

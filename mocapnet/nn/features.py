@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from mocapnet.kinematics import euler_to_matrix, rotation_sequence
+from mocapnet.kinematics import euler_to_matrix, rotation_sequence, wrap_near
 from mocapnet.motion import Motion, Skeleton
 
 #: Floor on the per-channel normalising scale (degrees): nearly constant channels stay finite.
@@ -118,11 +118,6 @@ def root_angular_velocity(skeleton: Skeleton, channels: np.ndarray, fps: float) 
     out[1:] = matrix_rotvec(np.swapaxes(rot[:-1], 1, 2) @ rot[1:]) * fps
     out[0] = out[1]
     return out
-
-
-def wrap_near(values: np.ndarray, center: np.ndarray) -> np.ndarray:
-    """``values`` (degrees) moved by multiples of 360 into ``(center - 180, center + 180]``."""
-    return center - ((center - values + 180.0) % 360.0 - 180.0)
 
 
 @dataclass(frozen=True)

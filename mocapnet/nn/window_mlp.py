@@ -45,6 +45,8 @@ class WindowMLP(CleanerModule):
         windows = unfold_taps(feats, self.hparams.half).permute(0, 2, 1, 3)  # [B, T, C + 3, K]
         out = self.net(self.drop(windows.flatten(2)))
         pred = self.center + out * self.scale
+        # ``filled + kinematics.wrap_deg(pred - filled)`` up to float32 rounding; kept bit for bit for the
+        # trained checkpoints' figures.
         return filled + torch.remainder(pred - filled + 180.0, 360.0) - 180.0
 
     def predict_batch(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:

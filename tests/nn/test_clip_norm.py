@@ -9,6 +9,7 @@ import pytest
 import torch
 
 from mocapnet.corrupt import additive_noise
+from mocapnet.kinematics import wrap_deg
 from mocapnet.nn.base import NORM_KEYS, clip_statistics
 from mocapnet.nn.data import as_batch, crop_statistics
 from mocapnet.nn.features import ClipArrays, Normaliser, root_angular_velocity, scored_index
@@ -197,3 +198,12 @@ def test_the_checkpoints_change_limit_is_the_default(sample, tiny):
     np.testing.assert_allclose(by_default, asked, atol=1e-9)
     with pytest.raises(ValueError, match="change_limit"):
         tiny("ebf", sample, change_limit=-1.0)
+
+
+def test_wrap_deg_is_the_same_formula_on_tensors_and_arrays():
+    x = (np.random.default_rng(0).normal(0.0, 400.0, 1000) * np.repeat([1.0, 1e-6, 1e4, 1.0], 250)).astype(np.float32)
+    x[:4] = [180.0, -180.0, 540.0, -0.0]
+    t = wrap_deg(torch.from_numpy(x))
+    assert t.dtype == torch.float32
+    np.testing.assert_array_equal(t.numpy(), wrap_deg(x))
+    np.testing.assert_array_equal(t.numpy(), (torch.remainder(torch.from_numpy(x) + 180.0, 360.0) - 180.0).numpy())
