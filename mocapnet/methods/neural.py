@@ -40,9 +40,9 @@ from pathlib import Path
 import numpy as np
 
 from mocapnet.fill import lerp_fill
+from mocapnet.kinematics import wrap_near
 from mocapnet.methods.registry import MethodContext, build_method, register
 from mocapnet.motion import Motion
-from mocapnet.nn.features import wrap_near
 from mocapnet.nn.variants import VARIANTS, accepts, method_of
 
 _HELP = (

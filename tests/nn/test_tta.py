@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from mocapnet.corrupt import corrupt_motion
+from mocapnet.kinematics import wrap_deg
 from mocapnet.methods.neural import augmented_pass, tta_mean, tta_passes, warp_positions
 from mocapnet.methods.registry import build_method
 from mocapnet.motion import Motion
@@ -33,7 +34,7 @@ def noisy_copy(clip: Motion, corruption: str = "angular-0.5", seed: int = 0) -> 
 
 def circular_close(a: np.ndarray, b: np.ndarray, atol: float) -> None:
     """``a`` and ``b`` equal up to whole turns (degrees)."""
-    np.testing.assert_allclose((a - b + 180.0) % 360.0 - 180.0, 0.0, atol=atol)
+    np.testing.assert_allclose(wrap_deg(a - b), 0.0, atol=atol)
 
 
 def test_tta_option_parses_into_passes():
@@ -108,7 +109,7 @@ def test_warp_pass_round_trips_across_the_wrap(clip):
         assert len(positions) == max(2, round((n - 1) / rate) + 1)
     t = np.arange(120, dtype=np.float64)[:, None]
     ramps = np.concatenate([170.0 + 0.5 * t, -3.0 * t, 10.0 + 0.0 * t], axis=1)
-    ramps = (ramps + 180.0) % 360.0 - 180.0  # the first crosses +180 → -180 at frame 20
+    ramps = wrap_deg(ramps)  # the first crosses +180 → -180 at frame 20
     mask = np.zeros(ramps.shape, dtype=bool)
     idx = np.arange(3)
     seen = []
@@ -131,7 +132,7 @@ def test_warp_tta_keeps_shape_and_unscored_channels(clip, ebf_path):
     unscored = ~clip.skeleton.scored_mask
     np.testing.assert_array_equal(out[:, unscored], plain[:, unscored])
     idx = scored_index(clip.skeleton)
-    change = np.abs((out[:, idx] - plain[:, idx] + 180.0) % 360.0 - 180.0)
+    change = np.abs(wrap_deg(out[:, idx] - plain[:, idx]))
     assert 1e-4 < change.max() < 90.0
 
 
