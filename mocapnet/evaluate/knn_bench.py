@@ -84,16 +84,25 @@ PLATEAU_VARIANTS: tuple[dict, ...] = (
     {"plateau_s": 1.0},
     {"plateau_s": 0.5, "max_weight": 0.7},
 )
-# Third session (``--tune --grid twist``): the fallback's twist from the kNN estimate, and the limb gate.
+# Third session, round A (``--tune --grid twist``; ``twist="knn"`` was then called ``knn_twist=True``): the
+# fallback's twist from the kNN estimate, and the limb gate.
 TWIST_VARIANTS: tuple[dict, ...] = (
     {},
-    {"knn_twist": True},
-    {"knn_twist": True, "limb_gate": 10.0},
-    {"knn_twist": True, "limb_gate": 20.0},
-    {"knn_twist": True, "k": 32},
-    {"knn_twist": True, "distance_gain": 9.0},
+    {"twist": "knn"},
+    {"twist": "knn", "limb_gate": 10.0},
+    {"twist": "knn", "limb_gate": 20.0},
+    {"twist": "knn", "k": 32},
+    {"twist": "knn", "distance_gain": 9.0},
 )
-GRIDS = {"main": TUNE_VARIANTS, "plateau": PLATEAU_VARIANTS, "twist": TWIST_VARIANTS}
+# Round C (``--tune --grid gate``): the limb gate alone, and the fallback's twist from the blend.
+GATE_VARIANTS: tuple[dict, ...] = (
+    {},
+    {"limb_gate": 10.0},
+    {"limb_gate": 15.0},
+    {"twist": "blend"},
+    {"twist": "blend", "limb_gate": 15.0},
+)
+GRIDS = {"main": TUNE_VARIANTS, "plateau": PLATEAU_VARIANTS, "twist": TWIST_VARIANTS, "gate": GATE_VARIANTS}
 
 
 def evenly(items: Sequence, n: int) -> list:

@@ -30,9 +30,10 @@ For every *gap* (maximal run of frames in which some scored channel is missing):
    (Gløersen & Federolf on the joint positions, back to angles by IK, ``pca_angles``): f next to the
    observed frames, where the neighbours disagree, or where nothing in the database moves the limb alike
    (motion the database lacks); the database where they agree. Positions cannot fix a joint's twist about
-   a bone with one child; the IK keeps the twist of its reference, linear interpolation or, with
-   ``knn_twist``, the kNN estimate (of the gaps not gated). With ``limb_gate``, a gap whose limb distance
-   exceeds it gets β = 0 (f alone). With the truth in the database σ = 0 and the fill is exact.
+   a bone with one child; the IK keeps the twist of its reference (``twist``): linear interpolation, the kNN
+   estimate, or their blend with weight β (``blend``; gated gaps: interpolation). With ``limb_gate``, a gap
+   whose limb distance exceeds it gets β = 0 (f alone). With the truth in the database σ = 0 and the fill
+   is exact.
 
 Observed samples and unscored channels are never changed; missing unscored channels are interpolated.
 """
@@ -216,10 +217,10 @@ def fill_angles(
                     base[:, c], near, nb.kernel, seconds[:, c], lo, (c0 + lo, c1 + lo), rms, settings
                 )
                 est[t, c], beta[t, c], filled[t, c] = e, 0.0 if gated else bt, True
-                if not gated:
-                    twist[t, c] = e
+                if not gated and settings.twist != "lerp":
+                    twist[t, c] = e if settings.twist == "knn" else base[t, c] + bt * (e - base[t, c])
     if settings.fallback == "pca":
-        anchor = pca_angles(motion, mask, twist if settings.knn_twist else base, visible)
+        anchor = pca_angles(motion, mask, twist, visible)
     else:
         anchor = base
     out[filled] = anchor[filled] + beta[filled] * (est[filled] - anchor[filled])
@@ -247,7 +248,7 @@ def angle_filler(
     "angles",
     help="kNN in joint space from a large clean database (default: the largest corpus of the skeleton, cached), "
     "offset-corrected and blended with the clip's PCA fill; options k, margin_s, near_gain, speed, offset, "
-    "query_hz, distance_gain, own, fallback, max_weight, limb_distance, plateau_s, knn_twist, limb_gate, database",
+    "query_hz, distance_gain, own, fallback, max_weight, limb_distance, plateau_s, twist, limb_gate, database",
 )
 def _knn_angles(
     context: MethodContext, database: str | None = None, **options: Any

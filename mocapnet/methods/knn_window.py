@@ -145,9 +145,10 @@ class WindowSettings:
     the margins where they are observed (how well the neighbours match the missing limb itself), instead of
     on every point (joint space only); ``plateau_s``: the fallback's error is taken to stop growing this many
     seconds from the nearest observed frame (PCA's error does not grow like interpolation's; None: never);
-    ``knn_twist`` (joint space, fallback ``pca``): the fallback's inverse kinematics takes the rotation that
-    positions cannot fix (twist about a bone with one child) from the kNN estimate instead of from linear
-    interpolation; ``limb_gate`` (cm, joint space): a gap whose neighbours' limb distance exceeds this takes
+    ``twist`` (joint space, fallback ``pca``): where the fallback's inverse kinematics takes the rotation that
+    positions cannot fix (twist about a bone with one child) from: ``lerp`` (linear interpolation), ``knn``
+    (the kNN estimate) or ``blend`` (the kNN/interpolation blend with the fill's own weight β);
+    ``limb_gate`` (cm, joint space): a gap whose neighbours' limb distance exceeds this takes
     the fallback only (None: never)."""
 
     k: int = 16
@@ -162,15 +163,16 @@ class WindowSettings:
     max_weight: float = 1.0
     limb_distance: bool = False
     plateau_s: float | None = None
-    knn_twist: bool = False
+    twist: str = "lerp"
     limb_gate: float | None = None
 
     def __post_init__(self) -> None:
         positive = all(v is None or v > 0 for v in (self.plateau_s, self.limb_gate))
-        if self.k < 1 or not 0.0 <= self.max_weight <= 1.0 or self.fallback not in ("lerp", "pca") or not positive:
+        choices = self.fallback in ("lerp", "pca") and self.twist in ("lerp", "knn", "blend")
+        if self.k < 1 or not 0.0 <= self.max_weight <= 1.0 or not choices or not positive:
             raise ValueError(
-                "knn: k must be >= 1, max_weight in [0, 1], fallback lerp or pca, plateau_s and limb_gate > 0; "
-                f"got {self}"
+                "knn: k must be >= 1, max_weight in [0, 1], fallback lerp or pca, twist lerp, knn or blend, "
+                f"plateau_s and limb_gate > 0; got {self}"
             )
 
 

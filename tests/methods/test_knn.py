@@ -421,7 +421,14 @@ def test_max_weight_caps_the_knn_share_and_bad_settings_are_refused() -> None:
     assert np.allclose(half, 0.5 * (full + anchor[5:15])) and np.abs(full - anchor[5:15]).max() > 1.0
     capped = blend(WindowSettings(speed=1.0, plateau_s=0.01))  # the fallback's error stops growing 0.01 s out
     assert np.abs(capped - anchor[5:15]).max() < np.abs(full - anchor[5:15]).max()  # the kNN share shrinks
-    bad_settings = ({"max_weight": 1.5}, {"k": 0}, {"fallback": "spline"}, {"plateau_s": 0.0}, {"limb_gate": -1.0})
+    bad_settings = (
+        {"max_weight": 1.5},
+        {"k": 0},
+        {"fallback": "spline"},
+        {"plateau_s": 0.0},
+        {"limb_gate": -1.0},
+        {"twist": "x"},
+    )
     for bad in bad_settings:
         with pytest.raises(ValueError, match="knn: k must be"):
             WindowSettings(**bad)
@@ -474,14 +481,14 @@ def test_limb_gate_falls_back_to_pca_and_keeps_the_truth(parts) -> None:
     assert np.allclose(gated[scored], _fallback(noisy, mask, lerp_fill(noisy.channels, mask))[scored], atol=1e-9)
     db = SkeletonDatabase.from_motions([parts[0], truth.with_channels(truth.channels), parts[2]])
     db.names = ("part0", "copy of the truth", "part1800")
-    for twist in (False, True):
-        settings = WindowSettings(**{**ANGLE_DEFAULTS, "limb_gate": 1.0, "knn_twist": twist})
+    for twist in ("lerp", "knn", "blend"):
+        settings = WindowSettings(**{**ANGLE_DEFAULTS, "limb_gate": 1.0, "twist": twist})
         out, _ = fill_angles(noisy, mask, db, settings)
         assert _gap_rms(out, truth.channels, mask) < 1e-3
 
 
-def test_knn_twist_changes_the_fallback_angles_not_its_positions(parts) -> None:
-    """With the blend all fallback (speed ~0), ``knn_twist`` gives the PCA fallback whose IK takes its twist
+def test_twist_from_knn_changes_the_fallback_angles_not_its_positions(parts) -> None:
+    """With the blend all fallback (speed ~0), ``twist="knn"`` gives the PCA fallback whose IK takes its twist
     from the kNN estimate: other angles than with the twist of interpolation, the same joint positions."""
     truth = parts[1]
     noisy, mask = _segment_gap(truth, "segment-gap:left-arm:1", seed=4)
@@ -489,7 +496,7 @@ def test_knn_twist_changes_the_fallback_angles_not_its_positions(parts) -> None:
     knn_only, _ = fill_angles(noisy, mask, db, WindowSettings(**{**ANGLE_DEFAULTS, "speed": None}))
     settings = {**ANGLE_DEFAULTS, "speed": 1e-9}
     plain, _ = fill_angles(noisy, mask, db, WindowSettings(**settings))
-    twisted, _ = fill_angles(noisy, mask, db, WindowSettings(**settings, knn_twist=True))
+    twisted, _ = fill_angles(noisy, mask, db, WindowSettings(**settings, twist="knn"))
     scored = mask & truth.skeleton.scored_mask[None]
     assert np.allclose(twisted[scored], _fallback(noisy, mask, knn_only)[scored], atol=1e-6)
     assert np.abs(wrap(twisted - plain))[scored].max() > 1.0  # the twist differs
