@@ -254,12 +254,18 @@ class _Hierarchy:
             self.error(lineno, f"{what} inside an End Site")
         return top
 
-    def _offset(self, lineno: int, tokens: list[bytes]) -> bool:
-        top = self._top(lineno, "OFFSET", joint_only=False)
-        if top[2]:
-            self.error(lineno, f"second OFFSET in {self.label(top[0])}")
+    def _first(self, lineno: int, what: str, joint_only: bool, seen: int) -> list:
+        """``_top`` for a statement a node holds once (``seen``: index of its flag in the stack entry), before
+        its first child."""
+        top = self._top(lineno, what, joint_only)
+        if top[seen]:
+            self.error(lineno, f"second {what} in {self.label(top[0])}")
         if top[4]:
-            self.error(lineno, f"OFFSET of {self.label(top[0])} after its first child")
+            self.error(lineno, f"{what} of {self.label(top[0])} after its first child")
+        return top
+
+    def _offset(self, lineno: int, tokens: list[bytes]) -> bool:
+        top = self._first(lineno, "OFFSET", joint_only=False, seen=2)
         if len(tokens) != 4:
             self.error(lineno, f"OFFSET needs 3 numbers, got {len(tokens) - 1}")
         values = [float(t) for t in tokens[1:]] if _FLOAT3_RE.fullmatch(b" ".join(tokens[1:])) else []
@@ -271,11 +277,7 @@ class _Hierarchy:
         return False
 
     def _channels(self, lineno: int, tokens: list[bytes]) -> bool:
-        top = self._top(lineno, "CHANNELS", joint_only=True)
-        if top[3]:
-            self.error(lineno, f"second CHANNELS in {self.label(top[0])}")
-        if top[4]:
-            self.error(lineno, f"CHANNELS of {self.label(top[0])} after its first child")
+        top = self._first(lineno, "CHANNELS", joint_only=True, seen=3)
         if len(tokens) < 2 or not _INT_RE.fullmatch(tokens[1]):
             self.error(lineno, f"CHANNELS needs a count, got {_quote(tokens[1]) if len(tokens) > 1 else 'nothing'}")
         count = int(tokens[1])
