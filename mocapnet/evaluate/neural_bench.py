@@ -170,7 +170,8 @@ def push_times(stream, frames: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def streaming(clip: Motion, methods: Sequence[str], n_frames: int) -> dict:
     """``EBFStream.push`` CPU and wall time per frame (median, p99, ms) of each shipped EBF method."""
     from mocapnet.nn.checkpoints import shipped_checkpoint
-    from mocapnet.nn.infer import EBFStream, load_model
+    from mocapnet.nn.infer import load_model
+    from mocapnet.nn.stream import EBFStream
 
     noisy, _ = corrupt_motion(clip, "angular-0.5", np.random.default_rng(1))
     out = {}
@@ -192,7 +193,8 @@ def streaming_quality(
     """What streaming costs in quality: mean over clips of the per-clip RMS angle error (degrees) of windowed
     mode (whole-clip statistics) and of ``EBFStream`` (for a ``norm="clip"`` network: running statistics of
     the frames seen so far), on each corruption, 1 repeat."""
-    from mocapnet.nn.infer import EBFStream, clean_channels, load_model
+    from mocapnet.nn.infer import clean_channels, load_model
+    from mocapnet.nn.stream import EBFStream
 
     model = load_model(checkpoint)
     _, clips, _ = split_clips(name, split, n_clips)

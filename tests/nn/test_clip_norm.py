@@ -1,6 +1,6 @@
 """Per-clip input normalisation (``model.norm=clip``): the statistics, the invariance it buys, training crops
-normalised as their whole clip, chunked sequence mode, streaming (fixed and running statistics) and that
-corpus-normalised checkpoints behave as before."""
+normalised as their whole clip, chunked sequence mode and that corpus-normalised checkpoints behave as before
+(streaming with clip statistics: test_stream.py)."""
 
 from __future__ import annotations
 
@@ -12,13 +12,10 @@ from mocapnet.corrupt import additive_noise
 from mocapnet.kinematics import wrap_deg
 from mocapnet.nn.base import NORM_KEYS, clip_statistics
 from mocapnet.nn.data import as_batch, crop_statistics
-from mocapnet.nn.features import ClipArrays, Normaliser, root_angular_velocity, scored_index
+from mocapnet.nn.features import ClipArrays, Normaliser, scored_index
 from mocapnet.nn.infer import (
     CHUNK,
     OVERLAP,
-    EBFStream,
-    RunningStats,
-    _stats_due,
     clean_channels,
     limit_change,
     noise_level,
@@ -88,54 +85,6 @@ def test_chunked_sequence_mode_keeps_the_whole_clips_statistics(sample, tiny):
     with torch.inference_mode():
         diff = (predict_sequence(model, batch) - model(x, w)[0]).abs()
     assert float(diff.max()) < 0.2 and float(diff.pow(2).mean().sqrt()) < 0.01
-
-
-@pytest.mark.parametrize("length", [20, 80])
-def test_stream_with_fixed_statistics_matches_windowed_mode(length, sample, tiny):
-    model = _clip_model(tiny, sample)
-    clip = sample.channels[300 : 300 + length]
-    expected = clean_channels(model, clip, np.zeros(clip.shape, bool), sample.skeleton, sample.fps, "windowed")
-    x = torch.as_tensor(clip[:, scored_index(sample.skeleton)], dtype=torch.float32)
-    w = torch.as_tensor(root_angular_velocity(sample.skeleton, clip, sample.fps), dtype=torch.float32)
-    stats = tuple(v[0].numpy() for v in clip_statistics(x, w).values())
-    stream = EBFStream(model, sample.skeleton, sample.fps, stats=stats)
-    got = [item for frame in clip for item in stream.push(frame)] + stream.flush()
-    assert [i for i, _ in got] == list(range(length))
-    np.testing.assert_allclose(np.stack([f for _, f in got]), expected, atol=1e-3)
-
-
-def test_stream_with_running_statistics(sample, tiny):
-    """Without given statistics the stream uses those of what it has seen: on a stream no longer than one
-    window every frame comes out at the flush, with the whole clip's statistics (= windowed mode); on a longer
-    one the early frames differ (fewer frames seen) but stay close."""
-    model = _clip_model(tiny, sample)
-    for length, tol in ((25, 1e-3), (200, None)):
-        clip = sample.channels[300 : 300 + length]
-        expected = clean_channels(model, clip, np.zeros(clip.shape, bool), sample.skeleton, sample.fps, "windowed")
-        stream = EBFStream(model, sample.skeleton, sample.fps)
-        got = np.stack([f for frame in clip for _, f in stream.push(frame)] + [f for _, f in stream.flush()])
-        assert np.isfinite(got).all()
-        if tol:
-            np.testing.assert_allclose(got, expected, atol=tol)
-        else:
-            idx = scored_index(sample.skeleton)
-            spread = np.abs(clip[:, idx] - clip[:, idx].mean(0)).max()
-            assert np.abs(got - expected).max() < 0.5 * spread
-
-
-def test_running_statistics_and_refresh_schedule(sample):
-    clip = ClipArrays.from_motion(sample)
-    running = RunningStats(clip.scored.shape[1])
-    for row, w in zip(clip.scored[:400].astype(np.float64), clip.angvel[:400]):
-        running.add(row)
-        running.add_angvel(w)
-    center, scale, angvel_scale = running.stats()
-    norm = Normaliser.fit([clip.scored[:400]], [clip.angvel[:400]])
-    np.testing.assert_allclose(center, norm.center, atol=1e-3)
-    np.testing.assert_allclose(scale, norm.scale, rtol=1e-3)
-    np.testing.assert_allclose(angvel_scale, norm.angvel_scale, rtol=1e-4)
-    due = [n for n in range(1, 3000) if _stats_due(n, 31)]
-    assert due == [31, 62, 124, 248, 496, 992, 1024, 2048]
 
 
 def test_corpus_normalised_models_ignore_clip_statistics(sample, tiny, batch):

@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from mocapnet.nn import EBD, EBF, load_model
-from mocapnet.nn.infer import EBFStream, clean_channels
+from mocapnet.nn.infer import clean_channels
 
 KINDS = ("ebf", "ebf-bias", "ebf-free", "bf", "ebd", "nn")
 
@@ -87,22 +87,6 @@ def test_windowed_mode_is_local(sample, tiny):
     out = clean_channels(model, changed, no_mask, sample.skeleton, sample.fps, "windowed")
     np.testing.assert_allclose(out[:134], base[:134], atol=1e-4)
     assert np.abs(out[148] - base[148]).max() > 1e-3
-
-
-@pytest.mark.parametrize(
-    "kind, length", [("ebf-bias", 12), ("ebf-bias", 31), ("ebf-bias", 75), ("ebf", 75), ("ebf-free", 75)]
-)
-def test_stream_matches_windowed_mode(kind, length, sample, tiny):
-    model = tiny(kind, sample).eval()
-    if kind == "ebf-free":
-        with torch.no_grad():
-            model.head[-1].weight.normal_(0.0, 0.3)  # make the free kernels differ from frame to frame
-    clip = sample.channels[300 : 300 + length]
-    expected = clean_channels(model, clip, np.zeros(clip.shape, bool), sample.skeleton, sample.fps, "windowed")
-    stream = EBFStream(model, sample.skeleton, sample.fps)
-    got = [item for frame in clip for item in stream.push(frame)] + stream.flush()
-    assert [i for i, _ in got] == list(range(length))
-    np.testing.assert_allclose(np.stack([f for _, f in got]), expected, atol=1e-4)
 
 
 @pytest.mark.parametrize("method", ["ebf", "ebd"])

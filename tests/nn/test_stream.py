@@ -1,0 +1,139 @@
+"""Streaming EBF (``mocapnet.nn.stream``): ``EBFStream`` equals windowed mode (tiny and shipped networks, fixed
+and running clip statistics), ``EBFStreams`` equals separate streams, the running statistics and their refresh
+schedule, and clear errors on bad frames."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from mocapnet.nn.base import clip_statistics
+from mocapnet.nn.features import ClipArrays, Normaliser, root_angular_velocity, scored_index
+from mocapnet.nn.infer import clean_channels, load_model
+from mocapnet.nn.stream import EBFStream, EBFStreams, RunningStats, _stats_due
+
+
+def _varied(model):
+    """``model`` in eval mode; a free kernel's head made to give kernels that differ from frame to frame."""
+    if model.hparams.filter_shape == "free":
+        with torch.no_grad():
+            model.head[-1].weight.normal_(0.0, 0.3)
+    return model.eval()
+
+
+def _run(stream, clip: np.ndarray) -> list[tuple[int, np.ndarray]]:
+    """Every ``(frame index, channels)`` a stream gives for ``clip [T, C]``, the flush included."""
+    return [item for frame in clip for item in stream.push(frame)] + stream.flush()
+
+
+def _windowed(model, clip: np.ndarray, sample) -> np.ndarray:
+    """Windowed mode on the whole clip ``[T, C]`` (whole-clip statistics for a clip-normalised network; no
+    self-check)."""
+    mask = np.zeros(clip.shape, bool)
+    return clean_channels(model, clip, mask, sample.skeleton, sample.fps, "windowed", change_limit=0.0)
+
+
+def _clip_stats(clip: np.ndarray, sample) -> tuple[np.ndarray, ...]:
+    """``clip_statistics`` of a clip ``[T, C]`` as numpy ``(center, scale, angvel_scale)``."""
+    x = torch.as_tensor(clip[:, scored_index(sample.skeleton)], dtype=torch.float32)
+    w = torch.as_tensor(root_angular_velocity(sample.skeleton, clip, sample.fps), dtype=torch.float32)
+    return tuple(v[0, 0].numpy() for v in clip_statistics(x[None], w[None]).values())
+
+
+@pytest.mark.parametrize(
+    "kind, length", [("ebf-bias", 12), ("ebf-bias", 31), ("ebf-bias", 75), ("ebf", 75), ("ebf-free", 75)]
+)
+def test_stream_matches_windowed_mode(kind, length, sample, tiny):
+    model = _varied(tiny(kind, sample))
+    clip = sample.channels[300 : 300 + length]
+    got = _run(EBFStream(model, sample.skeleton, sample.fps), clip)
+    assert [i for i, _ in got] == list(range(length))
+    np.testing.assert_allclose(np.stack([f for _, f in got]), _windowed(model, clip, sample), atol=1e-4)
+
+
+def test_shipped_ebf_streams_as_windowed_mode(sample):
+    """The numpy kernel with the shipped CMU network's weights (the steady state of 120 frames)."""
+    from mocapnet.nn.checkpoints import shipped_checkpoint
+
+    model = load_model(shipped_checkpoint("ebf", sample.skeleton))
+    clip = sample.channels[1000:1120]
+    got = np.stack([f for _, f in _run(EBFStream(model, sample.skeleton, sample.fps), clip)])
+    np.testing.assert_allclose(got, _windowed(model, clip, sample), atol=1e-3)
+
+
+@pytest.mark.parametrize("length", [20, 80])
+def test_stream_with_fixed_statistics_matches_windowed_mode(length, sample, tiny):
+    model = _varied(tiny("ebf-free", sample, norm="clip"))
+    clip = sample.channels[300 : 300 + length]
+    stats = _clip_stats(clip, sample)
+    got = _run(EBFStream(model, sample.skeleton, sample.fps, stats=stats), clip)
+    assert [i for i, _ in got] == list(range(length))
+    np.testing.assert_allclose(np.stack([f for _, f in got]), _windowed(model, clip, sample), atol=1e-3)
+
+
+def test_stream_with_running_statistics(sample, tiny):
+    """Without given statistics the stream uses those of what it has seen: on a stream no longer than one
+    window every frame comes out at the flush, with the whole clip's statistics (= windowed mode); on a longer
+    one the early frames differ (fewer frames seen) but stay close."""
+    model = _varied(tiny("ebf-free", sample, norm="clip"))
+    for length, tol in ((25, 1e-3), (200, None)):
+        clip = sample.channels[300 : 300 + length]
+        expected = _windowed(model, clip, sample)
+        got = np.stack([f for _, f in _run(EBFStream(model, sample.skeleton, sample.fps), clip)])
+        assert np.isfinite(got).all()
+        if tol:
+            np.testing.assert_allclose(got, expected, atol=tol)
+        else:
+            idx = scored_index(sample.skeleton)
+            spread = np.abs(clip[:, idx] - clip[:, idx].mean(0)).max()
+            assert np.abs(got - expected).max() < 0.5 * spread
+
+
+def test_running_statistics_and_refresh_schedule(sample):
+    clip = ClipArrays.from_motion(sample)
+    running = RunningStats(clip.scored.shape[1])
+    for row, w in zip(clip.scored[:400].astype(np.float64), clip.angvel[:400]):
+        running.add(row)
+        running.add_angvel(w)
+    center, scale, angvel_scale = running.stats()
+    norm = Normaliser.fit([clip.scored[:400]], [clip.angvel[:400]])
+    np.testing.assert_allclose(center, norm.center, atol=1e-3)
+    np.testing.assert_allclose(scale, norm.scale, rtol=1e-3)
+    np.testing.assert_allclose(angvel_scale, norm.angvel_scale, rtol=1e-4)
+    due = [n for n in range(1, 3000) if _stats_due(n, 31)]
+    assert due == [31, 62, 124, 248, 496, 992, 1024, 2048]
+
+
+@pytest.mark.parametrize("kind, norm", [("ebf-free", "corpus"), ("ebf-bias", "clip")])
+def test_streams_in_lockstep_equal_separate_streams(kind, norm, sample, tiny):
+    """Three clips through one ``EBFStreams`` give what three ``EBFStream`` s give; with a clip-normalised
+    bias network each stream keeps its own statistics (and bias unit)."""
+    model = _varied(tiny(kind, sample, norm=norm))
+    clips = [sample.channels[s : s + 70] for s in (0, 900, 2000)]
+    stats = [_clip_stats(c, sample) for c in clips] if norm == "clip" else None
+    streams = EBFStreams(model, sample.skeleton, sample.fps, len(clips), stats)
+    together: list[list] = [[] for _ in clips]
+    for frames in zip(*clips):
+        for out, got in zip(together, streams.push(np.stack(frames))):
+            out += got
+    for out, got in zip(together, streams.flush()):
+        out += got
+    for i, clip in enumerate(clips):
+        alone = _run(EBFStream(model, sample.skeleton, sample.fps, stats[i] if stats else None), clip)
+        assert [k for k, _ in together[i]] == [k for k, _ in alone] == list(range(len(clip)))
+        np.testing.assert_allclose(np.stack([f for _, f in together[i]]), np.stack([f for _, f in alone]), atol=1e-4)
+
+
+def test_bad_frames_are_refused_naming_the_frame(sample, tiny):
+    stream = EBFStream(_varied(tiny("ebf", sample)), sample.skeleton, sample.fps)
+    stream.push(sample.channels[0])
+    with pytest.raises(ValueError, match="frame 1: expected"):
+        stream.push(sample.channels[1, :-1])
+    bad = sample.channels[1].copy()
+    bad[5] = np.nan
+    with pytest.raises(ValueError, match="frame 1: .*NaN"):
+        stream.push(bad)
+    streams = EBFStreams(_varied(tiny("ebf", sample)), sample.skeleton, sample.fps, 2)
+    with pytest.raises(ValueError, match=r"expected frames \[2, C\]"):
+        streams.push(sample.channels[:3])
