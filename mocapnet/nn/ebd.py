@@ -28,8 +28,8 @@ import numpy as np
 import torch
 
 from mocapnet.fill import gap_fill, lerp_fill, mask_groups, runs, spline_fill
+from mocapnet.kinematics import wrap_near
 from mocapnet.nn.base import CleanerModule
-from mocapnet.nn.features import wrap_near
 from mocapnet.nn.layers import BLSTM, mlp, tapered
 
 
