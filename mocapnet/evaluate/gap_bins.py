@@ -133,6 +133,9 @@ def candidates() -> dict:
         "no check": dataclasses.replace(GAP_BLEND, speed_factor=OFF),
         "no taper": dataclasses.replace(GAP_BLEND, taper_s=0.0),
         "no gate": dataclasses.replace(GAP_BLEND, gate_s=(0.0, 0.0)),
+        "no gate or taper": dataclasses.replace(GAP_BLEND, gate_s=(0.0, 0.0), taper_s=0.0),
+        "gate to 0.1 s": dataclasses.replace(GAP_BLEND, gate_s=(GAP_BLEND.gate_s[0], 0.1)),
+        "taper 0.1 s": dataclasses.replace(GAP_BLEND, taper_s=0.1),
         "lerp base": dataclasses.replace(GAP_BLEND, spline_max_s=0.0),
         "spline <= 0.25 s": dataclasses.replace(GAP_BLEND, spline_max_s=0.25),
         **{f"check x{f:g}": dataclasses.replace(GAP_BLEND, speed_factor=f) for f in (1.0, 2.0, 3.0)},
@@ -176,13 +179,14 @@ def tune(repeats: int, checkpoint: str | None = None) -> dict:
 
 
 def choose(scores: Mapping[str, Mapping[str, float]], fallbacks: Mapping[str, int]) -> dict[str, str]:
-    """The pre-written rules applied to ``tune``'s scores: the blend geometry by ``select`` among "shipped" and
-    the geometry candidates (all with the shipped self-check); the self-check by the most fallbacks among the
-    "check" candidates and "shipped" whose mean ratio is within 0.5 % of "no check"'s."""
+    """The pre-written rules applied to ``tune``'s scores: the blend geometry by ``select`` among "shipped", the
+    geometry candidates (all with the shipped self-check) and "ebd-raw" (no blend, no check); the self-check by
+    the most fallbacks among the "check" candidates and "shipped" whose mean ratio is within 0.5 % of "no
+    check"'s."""
     mean = {k: float(np.mean(list(v.values()))) for k, v in scores.items()}
     checks = [k for k in scores if k.startswith("check") or k == "shipped"]
     check = max((k for k in checks if mean[k] <= 1.005 * mean["no check"]), key=fallbacks.get, default="no check")
-    geometry = {k: v for k, v in scores.items() if k == "shipped" or k not in (*checks, "no check", "ebd-raw")}
+    geometry = {k: v for k, v in scores.items() if k == "shipped" or k not in (*checks, "no check")}
     return {"selected": select(geometry), "check": check}
 
 

@@ -22,7 +22,9 @@ frame-to-frame steps × ``speed_factor``). The constants of ``GAP_BLEND`` were c
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import torch
@@ -57,14 +59,23 @@ class EBD(CleanerModule):
         fps: float = 0.0,
         corpus: str = "",
         spline_max_s: float = 0.0,
+        gap_blend: dict[str, Any] | None = None,
     ) -> None:
         super().__init__(n_channels, lr, weight_decay, lr_patience)
+        if gap_blend is not None:
+            as_blend(gap_blend)  # refuse unknown or malformed settings now, not at the first clip
         self.save_hyperparameters()
         self.encoder = mlp(tapered(2 * n_channels + 3, code, encoder_layers), last_activation=True)
         self.blstm = BLSTM(code, hidden, layers=2, dropout=dropout, stride=stride)
         self.decoder = mlp([2 * hidden] + [width] * (decoder_layers - 1) + [n_channels], last_activation=False)
         torch.nn.init.zeros_(self.decoder[-1].weight)
         torch.nn.init.zeros_(self.decoder[-1].bias)
+
+    def blend(self) -> GapBlend:
+        """How this network's fill is blended with interpolation (``blend_gaps``): the ``gap_blend`` stored
+        with it when it was chosen (inference only), else ``GAP_BLEND``."""
+        stored = self.hparams.get("gap_blend")
+        return GAP_BLEND if stored is None else as_blend(stored)
 
     def interpolate(self, channels: np.ndarray, mask: np.ndarray, fps: float) -> np.ndarray:
         """The interpolation this network corrects: ``channels [T, C]`` (degrees), ``mask [T, C]`` → ``[T, C]``
@@ -117,6 +128,18 @@ class GapBlend:
 
 #: The shipped setting, chosen on bandai2 fold 1 (``scripts/bench_ebd.py --tune``).
 GAP_BLEND = GapBlend()
+
+
+def as_blend(settings: Mapping[str, Any]) -> GapBlend:
+    """A ``GapBlend`` from its fields as stored in a checkpoint (``gate_s`` as a list); ValueError naming
+    what is wrong."""
+    try:
+        blend = GapBlend(**{k: tuple(v) if k == "gate_s" else float(v) for k, v in settings.items()})
+    except (TypeError, ValueError) as err:
+        raise ValueError(f"gap_blend {dict(settings)!r} is not a GapBlend: {err}") from None
+    if len(blend.gate_s) != 2:
+        raise ValueError(f"gap_blend gate_s must hold two times (s), got {blend.gate_s!r}")
+    return blend
 
 
 def channel_speed(channels: np.ndarray, mask: np.ndarray, quantile: float) -> np.ndarray:

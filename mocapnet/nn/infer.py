@@ -25,7 +25,7 @@ from mocapnet.kinematics import wrap_deg
 from mocapnet.motion import Skeleton
 from mocapnet.nn.base import NORM_KEYS, CleanerModule, clip_statistics
 from mocapnet.nn.checkpoints import read_checkpoint
-from mocapnet.nn.ebd import EBD, GAP_BLEND, GapBlend, blend_gaps
+from mocapnet.nn.ebd import EBD, GapBlend, blend_gaps
 from mocapnet.nn.features import root_angular_velocity, scored_index, topology_hash
 from mocapnet.nn.variants import MODEL_MODULES
 from mocapnet.threads import pin_threads
@@ -162,7 +162,7 @@ def clean_channels(
     skeleton: Skeleton,
     fps: float,
     mode: str = "sequence",
-    gap_blend: GapBlend | None = GAP_BLEND,
+    gap_blend: GapBlend | str | None = "checkpoint",
     change_limit: float | None = None,
 ) -> np.ndarray:
     """Clean one clip: ``channels [T, C]`` (degrees, NaN where ``mask [T, C]`` is True) → ``[T, C]``.
@@ -171,7 +171,8 @@ def clean_channels(
     ``EBD.interpolate``); only the scored channels change (EBD changes only their
     missing samples). ``mode``: ``"sequence"`` (in overlapping chunks on long clips, ``predict_sequence``) or
     ``"windowed"`` (module docstring). ``gap_blend``: how EBD's fill is blended with interpolation and
-    self-checked (``ebd.blend_gaps``); None keeps the network's fill as it comes. ``change_limit``: EBF's
+    self-checked (``ebd.blend_gaps``); ``"checkpoint"``: the setting stored with the network (``EBD.blend``);
+    None keeps the network's fill as it comes. ``change_limit``: EBF's
     self-check factor (``limit_change``; None: the checkpoint's ``change_limit`` hyper-parameter, 0: none).
     """
     if mode not in MODES:
@@ -194,7 +195,8 @@ def clean_channels(
         if gap_blend is None:
             result[:, idx] = np.where(mask[:, idx], out.numpy(), scored)
         else:
-            result[:, idx] = blend_gaps(scored, mask[:, idx], out.numpy(), fps, gap_blend)[0]
+            blend = model.blend() if gap_blend == "checkpoint" else gap_blend
+            result[:, idx] = blend_gaps(scored, mask[:, idx], out.numpy(), fps, blend)[0]
     else:
         limit = float(model.hparams.get("change_limit", 0.0)) if change_limit is None else change_limit
         cleaned = out.numpy().astype(np.float64)

@@ -101,3 +101,21 @@ def test_an_untrained_ebd_returns_the_interpolation_it_corrects(tiny, sample, sp
     np.testing.assert_allclose(out[:, idx], expected, atol=1e-3)  # float32 network arithmetic
     if spline_max_s:
         assert not np.allclose(expected[mask[:, idx]], lerp_fill(noisy, mask)[:, idx][mask[:, idx]])
+
+
+def test_the_blend_stored_with_a_network_is_the_one_it_uses(tiny, sample):
+    from mocapnet.nn.ebd import as_blend
+    from mocapnet.nn.infer import clean_channels
+
+    assert tiny("ebd", sample).blend() == GAP_BLEND
+    stored = {**dataclasses.asdict(PURE_NETWORK), "gate_s": [0.0, 0.0]}
+    model = tiny("ebd", sample, gap_blend=stored).eval()
+    assert model.blend() == PURE_NETWORK == as_blend(stored)
+    rng = np.random.default_rng(4)
+    noisy, mask = corrupt_motion(sample.with_channels(sample.channels[:600]), "gaps", rng)
+    args = (noisy, mask, sample.skeleton, sample.fps)
+    np.testing.assert_array_equal(clean_channels(model, *args), clean_channels(model, *args, gap_blend=PURE_NETWORK))
+    with pytest.raises(ValueError, match="gap_blend"):
+        tiny("ebd", sample, gap_blend={"taper": 1.0})
+    with pytest.raises(ValueError, match="gate_s"):
+        tiny("ebd", sample, gap_blend={"gate_s": [0.1]})
