@@ -8,10 +8,17 @@ import numpy as np
 import pytest
 import torch
 
+from mocapnet.nn import onnx_kernel
 from mocapnet.nn.base import clip_statistics
 from mocapnet.nn.features import ClipArrays, Normaliser, root_angular_velocity, scored_index
 from mocapnet.nn.infer import clean_channels, load_model
 from mocapnet.nn.stream import EBFStream, EBFStreams, RunningStats, _stats_due
+
+#: Both kernels of the steady state; ONNX Runtime only where the optional packages are installed.
+BACKENDS = [
+    "numpy",
+    pytest.param("onnx", marks=pytest.mark.skipif(not onnx_kernel.available(), reason="onnx/onnxruntime absent")),
+]
 
 
 def _varied(model):
@@ -41,38 +48,42 @@ def _clip_stats(clip: np.ndarray, sample) -> tuple[np.ndarray, ...]:
     return tuple(v[0, 0].numpy() for v in clip_statistics(x[None], w[None]).values())
 
 
+@pytest.mark.parametrize("backend", BACKENDS)
 @pytest.mark.parametrize(
     "kind, length", [("ebf-bias", 12), ("ebf-bias", 31), ("ebf-bias", 75), ("ebf", 75), ("ebf-free", 75)]
 )
-def test_stream_matches_windowed_mode(kind, length, sample, tiny):
+def test_stream_matches_windowed_mode(kind, length, backend, sample, tiny):
     model = _varied(tiny(kind, sample))
     clip = sample.channels[300 : 300 + length]
-    got = _run(EBFStream(model, sample.skeleton, sample.fps), clip)
+    got = _run(EBFStream(model, sample.skeleton, sample.fps, backend=backend), clip)
     assert [i for i, _ in got] == list(range(length))
     np.testing.assert_allclose(np.stack([f for _, f in got]), _windowed(model, clip, sample), atol=1e-4)
 
 
-def test_shipped_ebf_streams_as_windowed_mode(sample):
-    """The numpy kernel with the shipped CMU network's weights (the steady state of 120 frames)."""
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_shipped_ebf_streams_as_windowed_mode(backend, sample):
+    """The kernels with the shipped CMU network's weights (the steady state of 120 frames)."""
     from mocapnet.nn.checkpoints import shipped_checkpoint
 
     model = load_model(shipped_checkpoint("ebf", sample.skeleton))
     clip = sample.channels[1000:1120]
-    got = np.stack([f for _, f in _run(EBFStream(model, sample.skeleton, sample.fps), clip)])
+    got = np.stack([f for _, f in _run(EBFStream(model, sample.skeleton, sample.fps, backend=backend), clip)])
     np.testing.assert_allclose(got, _windowed(model, clip, sample), atol=1e-3)
 
 
+@pytest.mark.parametrize("backend", BACKENDS)
 @pytest.mark.parametrize("length", [20, 80])
-def test_stream_with_fixed_statistics_matches_windowed_mode(length, sample, tiny):
+def test_stream_with_fixed_statistics_matches_windowed_mode(length, backend, sample, tiny):
     model = _varied(tiny("ebf-free", sample, norm="clip"))
     clip = sample.channels[300 : 300 + length]
     stats = _clip_stats(clip, sample)
-    got = _run(EBFStream(model, sample.skeleton, sample.fps, stats=stats), clip)
+    got = _run(EBFStream(model, sample.skeleton, sample.fps, stats=stats, backend=backend), clip)
     assert [i for i, _ in got] == list(range(length))
     np.testing.assert_allclose(np.stack([f for _, f in got]), _windowed(model, clip, sample), atol=1e-3)
 
 
-def test_stream_with_running_statistics(sample, tiny):
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_stream_with_running_statistics(backend, sample, tiny):
     """Without given statistics the stream uses those of what it has seen: on a stream no longer than one
     window every frame comes out at the flush, with the whole clip's statistics (= windowed mode); on a longer
     one the early frames differ (fewer frames seen) but stay close."""
@@ -80,7 +91,7 @@ def test_stream_with_running_statistics(sample, tiny):
     for length, tol in ((25, 1e-3), (200, None)):
         clip = sample.channels[300 : 300 + length]
         expected = _windowed(model, clip, sample)
-        got = np.stack([f for _, f in _run(EBFStream(model, sample.skeleton, sample.fps), clip)])
+        got = np.stack([f for _, f in _run(EBFStream(model, sample.skeleton, sample.fps, backend=backend), clip)])
         assert np.isfinite(got).all()
         if tol:
             np.testing.assert_allclose(got, expected, atol=tol)
@@ -137,3 +148,14 @@ def test_bad_frames_are_refused_naming_the_frame(sample, tiny):
     streams = EBFStreams(_varied(tiny("ebf", sample)), sample.skeleton, sample.fps, 2)
     with pytest.raises(ValueError, match=r"expected frames \[2, C\]"):
         streams.push(sample.channels[:3])
+
+
+def test_backend_choice(sample, tiny, monkeypatch):
+    model = _varied(tiny("ebf", sample))
+    with pytest.raises(ValueError, match="backend must be one of"):
+        EBFStream(model, sample.skeleton, sample.fps, backend="torch")
+    monkeypatch.setattr(onnx_kernel, "available", lambda: False)
+    with pytest.raises(ValueError, match="optional packages onnx and onnxruntime"):
+        EBFStream(model, sample.skeleton, sample.fps, backend="onnx")
+    auto = EBFStream(model, sample.skeleton, sample.fps)  # falls back to numpy
+    assert auto._onnx is None and auto._kernel is not None
