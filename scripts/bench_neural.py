@@ -6,6 +6,7 @@
     python scripts/bench_neural.py --method ebf-free=runs/x/best.ckpt --skip-speed   # a candidate checkpoint
     python scripts/bench_neural.py --split val --corpus bandai2 --select --no-shipped \\
         --method ebf=a.ckpt --method ebf=b.ckpt --skip-bins --skip-speed       # choose among candidates (fold 1)
+    python scripts/bench_neural.py --only stream      # rerun the streaming timing; keep the rest of the file
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ import argparse
 import os
 
 from mocapnet.evaluate import neural_bench as bench
-from mocapnet.evaluate.results import provenance, write_results
+from mocapnet.evaluate.results import provenance, read_json, write_results
 from mocapnet.threads import pin_threads
 
 
@@ -38,6 +39,10 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--skip-quality", action="store_true")
     parser.add_argument("--skip-bins", action="store_true")
     parser.add_argument("--skip-speed", action="store_true")
+    parser.add_argument(
+        "--only", choices=("stream",), help="rerun only this part; the others are kept from the existing --out file"
+    )
+    parser.add_argument("--stream-frames", type=int, default=3000, help="frames pushed per streaming timing")
     parser.add_argument("--timing-repeats", type=int, default=5)
     parser.add_argument("--out", default=os.path.join("benchmarks", "results", "neural"), help="path without suffix")
     args = parser.parse_args(argv)
@@ -50,6 +55,12 @@ def main(argv: list[str] | None = None) -> None:
     args = parse_args(argv)
     pin_threads(1)
     result = {**provenance(argv), "load": ", ".join(f"{x:.1f}" for x in os.getloadavg())}
+    if args.only == "stream":
+        kept = read_json(args.out + ".json")
+        kept.get("speed", {}).pop("streaming", None)  # the layout before the streaming part stood alone
+        result = kept | {"streaming": streaming_part(args), "streaming_run": result}
+        write_results(args.out, result, bench.markdown(result), indent=1)
+        return
     corpora = args.corpus or ["bandai2", "bandai1"]
     corruptions = args.corruption or (list(bench.SELECTION) if args.select else bench.CORRUPTIONS)
     if not args.skip_quality:
@@ -72,7 +83,14 @@ def main(argv: list[str] | None = None) -> None:
         result["gap_bins"] = [b for c in corpora for b in bench.gap_bins(c, args.clips, args.repeats)]
     if not args.skip_speed:
         result["speed"] = bench.speed(bench.shipped_variants(bench.long_clip(100)), args.timing_repeats)
+        result["streaming"] = streaming_part(args)
     write_results(args.out, result, bench.markdown(result), indent=1)
+
+
+def streaming_part(args: argparse.Namespace) -> dict:
+    """``neural_bench.streaming`` of the shipped EBF methods on ``--stream-frames`` bandai2 frames."""
+    methods = [m for m in bench.shipped_variants(bench.long_clip(100)) if m.startswith("ebf")]
+    return bench.streaming(bench.long_clip(args.stream_frames), methods, args.stream_frames)
 
 
 if __name__ == "__main__":

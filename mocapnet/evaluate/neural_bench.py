@@ -16,6 +16,7 @@ time of ``EBFStream.push`` per frame.
 from __future__ import annotations
 
 import json
+import os
 import resource
 import subprocess
 import sys
@@ -133,8 +134,8 @@ def long_clip(n_frames: int) -> Motion:
     return test[0].with_channels(np.tile(ch, (int(np.ceil(n_frames / len(ch))), 1))[:n_frames])
 
 
-def speed(methods: Sequence[str], repeats: int, stream_frames: int = 3000) -> dict:
-    """Offline frames/s (median of ``repeats``), streaming push times and 300k-frame peak RSS per method."""
+def speed(methods: Sequence[str], repeats: int) -> dict:
+    """Offline frames/s (median of ``repeats``) and 300k-frame peak RSS per method."""
     clip = long_clip(10_000)
     noisy, mask = corrupt_motion(clip, "angular-0.5", np.random.default_rng(0))
     offline = {}
@@ -150,40 +151,60 @@ def speed(methods: Sequence[str], repeats: int, stream_frames: int = 3000) -> di
     return {
         "offline_frames": clip.n_frames,
         "offline": offline,
-        "streaming": streaming(clip, [m for m in methods if m.startswith("ebf")], stream_frames),
         "rss_300k": {m: rss_child(m) for m in methods},
     }
 
 
-def push_times(stream, frames: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """CPU and wall milliseconds of each ``stream.push`` over ``frames [N, C]`` after the first window."""
-    cpu, wall = [], []
-    for frame in frames:
-        c0, w0 = time.thread_time(), time.perf_counter()
-        stream.push(frame)
-        cpu.append(time.thread_time() - c0)
-        wall.append(time.perf_counter() - w0)
-    skip = 2 * stream.half + 2
-    return np.array(cpu[skip:]) * 1e3, np.array(wall[skip:]) * 1e3
+#: Streams pushed together in the ``EBFStreams`` timing.
+LOCKSTEP_STREAMS = 8
+
+
+def push_times(push, frames: np.ndarray, skip: int) -> tuple[np.ndarray, np.ndarray]:
+    """CPU (``time.thread_time_ns``) and wall milliseconds of each ``push(frame)`` over ``frames [N, ...]``,
+    the first ``skip`` (the first window, run by the torch modules) left out."""
+    cpu, wall = np.zeros(len(frames)), np.zeros(len(frames))
+    for i, frame in enumerate(frames):
+        c0, w0 = time.thread_time_ns(), time.perf_counter_ns()
+        push(frame)
+        cpu[i], wall[i] = time.thread_time_ns() - c0, time.perf_counter_ns() - w0
+    return cpu[skip:] / 1e6, wall[skip:] / 1e6
+
+
+def _percentiles(cpu_ms: np.ndarray, wall_ms: np.ndarray, per: int = 1) -> dict:
+    """p50/p99 of CPU and wall milliseconds, divided by ``per`` (streams per push)."""
+    out = {"pushes": len(cpu_ms), "streams": per}
+    for key, ms in (("cpu", cpu_ms), ("wall", wall_ms)):
+        out |= {f"{key}_p50_ms": float(np.median(ms)) / per, f"{key}_p99_ms": float(np.percentile(ms, 99)) / per}
+    return out
 
 
 def streaming(clip: Motion, methods: Sequence[str], n_frames: int) -> dict:
-    """``EBFStream.push`` CPU and wall time per frame (median, p99, ms) of each shipped EBF method."""
+    """Per-frame cost of streaming each shipped EBF method on ``n_frames`` of angular-0.5 noise: CPU time
+    (``time.thread_time_ns``, what the machine's other load least disturbs) and wall time per
+    ``EBFStream.push``, p50 and p99 over the pushes after the first window, for each kernel (``numpy``;
+    ``onnx`` when installed), and per stream of ``LOCKSTEP_STREAMS`` streams pushed together (``EBFStreams``:
+    one push's time ÷ the streams), with the load average before and after."""
+    from mocapnet.nn import onnx_kernel
     from mocapnet.nn.checkpoints import shipped_checkpoint
     from mocapnet.nn.infer import load_model
-    from mocapnet.nn.stream import EBFStream
+    from mocapnet.nn.stream import EBFStream, EBFStreams
 
     noisy, _ = corrupt_motion(clip, "angular-0.5", np.random.default_rng(1))
-    out = {}
+    frames = noisy[:n_frames]
+    backends = ["numpy"] + (["onnx"] if onnx_kernel.available() else [])
+    out: dict = {"load_before": list(os.getloadavg())}
     for name in methods:
-        stream = EBFStream(load_model(shipped_checkpoint(name, clip.skeleton)), clip.skeleton, clip.fps)
-        cpu_ms, wall_ms = push_times(stream, noisy[:n_frames])
-        out[name] = {
-            "cpu_median_ms": float(np.median(cpu_ms)),
-            "cpu_p99_ms": float(np.percentile(cpu_ms, 99)),
-            "wall_median_ms": float(np.median(wall_ms)),
-            "wall_p99_ms": float(np.percentile(wall_ms, 99)),
-        }
+        model = load_model(shipped_checkpoint(name, clip.skeleton))
+        rows = {}
+        for backend in backends:
+            stream = EBFStream(model, clip.skeleton, clip.fps, backend=backend)
+            rows[backend] = _percentiles(*push_times(stream.push, frames, stream.width + 1))
+        n = LOCKSTEP_STREAMS
+        streams = EBFStreams(model, clip.skeleton, clip.fps, n)
+        batch = np.stack([np.roll(frames, 7 * i, axis=0) for i in range(n)], axis=1)  # [N, n, C]
+        rows[f"numpy x{n}"] = _percentiles(*push_times(streams.push, batch, streams.width + 1), per=n)
+        out[name] = rows
+    out["load_after"] = list(os.getloadavg())
     return out
 
 
@@ -283,20 +304,43 @@ def markdown(result: dict) -> str:
         lines += [
             "",
             f"Speed, 1 thread: offline {sp['offline_frames']:,}-frame bandai2 clip (median), 300,000-frame "
-            "clean peak RSS (fresh process), EBFStream.push per frame after the first window:",
+            "clean peak RSS (fresh process):",
             "",
         ]
         rows = []
         for m, o in sp["offline"].items():
-            r, s = sp["rss_300k"].get(m), sp["streaming"].get(m)
+            r = sp["rss_300k"].get(m)
             rss = (f"{r['peak_mb']:.0f}", f"{r['seconds']:.1f}") if r else ("—", "—")
-            push = (f"{s['cpu_median_ms']:.3f} / {s['cpu_p99_ms']:.3f}", f"{s['wall_p99_ms']:.2f}") if s else ("—", "—")
-            rows.append((m, f"{o['frames_per_s']:,.0f}", *rss, *push))
-        lines += markdown_table(
-            ("method", "offline frames/s", "300k peak RSS MB", "300k s", "push CPU median / p99 ms", "wall p99 ms"),
-            rows,
-        )
+            rows.append((m, f"{o['frames_per_s']:,.0f}", *rss))
+        lines += markdown_table(("method", "offline frames/s", "300k peak RSS MB", "300k s"), rows)
+    if result.get("streaming"):
+        lines += ["", *streaming_markdown(result["streaming"], result.get("streaming_run"))]
     return "\n".join(lines) + "\n"
+
+
+def streaming_markdown(st: dict, run: dict | None = None) -> list[str]:
+    """The streaming table of ``streaming``'s result; ``run``: the provenance of a run that redid only it."""
+    load = ", ".join(f"{x:.1f}" for x in st["load_before"]) + " → " + ", ".join(f"{x:.1f}" for x in st["load_after"])
+    rerun = [f"Streaming rerun alone: `{run['command']}` at `{run['git_commit']}`.", ""] if run else []
+    lines = rerun + [
+        f"Streaming, 1 thread: time per frame of EBFStream.push after the first window (load average {load}); "
+        "CPU = time.thread_time_ns; `numpy xN`: N streams pushed together (EBFStreams), per stream:",
+        "",
+    ]
+    rows = [
+        (
+            m,
+            kernel,
+            f"{r['pushes']:,}",
+            *(f"{r[k]:.3f}" for k in ("cpu_p50_ms", "cpu_p99_ms", "wall_p50_ms", "wall_p99_ms")),
+        )
+        for m, kernels in st.items()
+        if isinstance(kernels, dict)
+        for kernel, r in kernels.items()
+    ]
+    return lines + markdown_table(
+        ("method", "kernel", "pushes", "CPU p50 ms", "CPU p99 ms", "wall p50 ms", "wall p99 ms"), rows
+    )
 
 
 if __name__ == "__main__":

@@ -45,3 +45,23 @@ def test_bandai1_cannot_be_a_selection_split():
     assert module.parse_args(["--split", "val", "--corpus", "bandai2"]).split == "val"
     with pytest.raises(ValueError, match="split"):
         bench.split_clips("bandai2", "train", 3)
+
+
+def test_only_stream_keeps_the_other_parts(tmp_path, monkeypatch):
+    """``--only stream`` reruns the streaming timing and keeps the rest of the results file."""
+    spec = importlib.util.spec_from_file_location("bench_neural", SCRIPT)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    from mocapnet.evaluate.results import read_json, write_json
+
+    old = {"command": "c", "git_commit": "g", "machine": "m", "load": "1.0", "speed": {"streaming": {"ebf": {}}}}
+    write_json(tmp_path / "neural.json", old)
+    row = {"pushes": 2000, "streams": 1, "cpu_p50_ms": 0.4, "cpu_p99_ms": 0.9, "wall_p50_ms": 0.5, "wall_p99_ms": 2.0}
+    timing = {"load_before": [1.0, 2.0, 3.0], "ebf": {"numpy": row, "onnx": row}, "load_after": [1.0, 2.0, 3.0]}
+    monkeypatch.setattr(module, "streaming_part", lambda args: timing)
+    module.main(["--only", "stream", "--out", str(tmp_path / "neural")])
+    got = read_json(tmp_path / "neural.json")
+    assert got["command"] == "c" and got["speed"] == {} and got["streaming"] == timing
+    assert "--only stream" in got["streaming_run"]["command"]
+    text = (tmp_path / "neural.md").read_text()
+    assert "| ebf | onnx | 2,000 | 0.400 | 0.900 | 0.500 | 2.000 |" in text
