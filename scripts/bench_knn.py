@@ -2,12 +2,12 @@
 (bandai2 and bandai1 fold 0, database bandai2), C3D whole-segment gaps, fill time per second of gap; the
 work is in ``mocapnet.evaluate.knn_bench``. Writes ``benchmarks/results/knn.md`` and ``knn.json.gz``;
 ``--tune`` scores setting variations on bandai2 fold 1 only and writes ``knn_tuning.md`` / ``.json.gz``
-(``--grid plateau``: the third round, ``knn_tuning_plateau.md``).
+(``--grid plateau|twist|gate``: later rounds, ``knn_tuning_<grid>.md``).
 
     nice -n 5 .venv/bin/python scripts/bench_knn.py --tune     # bandai2 fold 1 only
     nice -n 5 .venv/bin/python scripts/bench_knn.py            # the benchmark
     nice -n 5 .venv/bin/python scripts/bench_knn.py --parts bandai1,speed   # rerun parts, keep the rest
-    .venv/bin/python scripts/bench_knn.py --clips 2 --out /tmp/knn   # smoke run
+    .venv/bin/python scripts/bench_knn.py --clips 2 --out /tmp/knn   # smoke run (an empty --out: all parts)
 """
 
 from __future__ import annotations
