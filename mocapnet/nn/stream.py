@@ -284,6 +284,56 @@ def _stats_due(count: int, width: int) -> bool:
     return count < STATS_EVERY and count % width == 0 and ratio & (ratio - 1) == 0
 
 
+class RunningSelfCheck:
+    """EBF's self-check (``infer.limit_change``) applied causally: each scored channel's change is capped at
+    ``factor`` × the white-noise σ its input shows, both known from the frames seen so far. σ is
+    ``infer.noise_level``'s estimate (MAD of second differences) over the last ``HISTORY`` frames, refreshed
+    on the running statistics' schedule (``_stats_due``) and at the flush; the RMS change is that of every
+    frame returned so far, the frames being returned included; frames returned together (the first window, the
+    flush) share one cap. A stream no longer than one window thus gets exactly ``limit_change`` of windowed
+    mode; on a longer one the early frames see estimates from fewer frames."""
+
+    HISTORY = 4096
+
+    def __init__(self, n_channels: int, factor: float) -> None:
+        self.factor = factor
+        self.sigma = np.zeros(n_channels)
+        self._cap = np.zeros(n_channels)
+        self._prev: np.ndarray | None = None
+        self._d1: np.ndarray | None = None
+        self._d2 = np.zeros((self.HISTORY, n_channels))
+        self._n_d2 = 0
+        self._sumsq, self._n_out = np.zeros(n_channels), 0
+
+    def add(self, scored: np.ndarray) -> None:
+        """One input frame's scored channels ``[C]`` (degrees): its second difference joins the history."""
+        if self._prev is not None:
+            d1 = wrap_deg(scored - self._prev)  # the first difference of the unwrapped series
+            if self._d1 is not None:
+                self._d2[self._n_d2 % self.HISTORY] = d1 - self._d1
+                self._n_d2 += 1
+            self._d1 = d1
+        self._prev = scored
+
+    def refresh(self) -> None:
+        """Re-estimate σ ``[C]`` from the history (``infer.noise_level``'s formula; zeros before 3 frames)."""
+        d2 = self._d2[: min(self._n_d2, self.HISTORY)]
+        if len(d2):
+            dev = np.abs(d2 - np.median(d2, axis=0))
+            self.sigma = 1.4826 * np.median(dev, axis=0) / np.sqrt(6.0)
+            self._cap = self.factor * self.sigma
+
+    def apply(self, noisy: np.ndarray, cleaned: np.ndarray) -> np.ndarray:
+        """``cleaned [n, C]`` moved toward ``noisy [n, C]`` (degrees) as ``limit_change`` would, with the running
+        RMS change (these ``n`` frames included) and the current σ."""
+        change = wrap_deg(cleaned - noisy)
+        self._sumsq += np.square(change).sum(axis=0)
+        self._n_out += len(change)
+        rms = np.sqrt(self._sumsq / self._n_out)
+        change *= np.minimum(self._cap / np.maximum(rms, 1e-12), 1.0)  # 1 where rms ≤ cap
+        return noisy + change
+
+
 class _Ring:
     """The last ``width`` rows ``[*shape]`` of a stream: frame k sits in slots ``k % W`` and ``k % W + W``, so
     any ``n ≤ W`` consecutive frames are one slice (``last``)."""
@@ -316,7 +366,9 @@ class EBFStream:
     the first window and the flush run the torch modules. ``EBFStreams`` runs several streams in lockstep
     through one (numpy) kernel call per frame.
 
-    A ``norm="corpus"`` network gives exactly ``clean_channels(..., mode="windowed")`` on the whole clip. A
+    ``change_limit``: the self-check factor (None: the checkpoint's ``change_limit``; 0: none), applied causally
+    (``RunningSelfCheck``). Without it (or on a stream no longer than one window) a ``norm="corpus"`` network
+    gives exactly ``clean_channels(..., mode="windowed")`` on the whole clip. A
     ``norm="clip"`` network needs the clip's statistics: ``stats`` (``(center [C_s], scale [C_s],
     angvel_scale [3])``, e.g. ``clip_statistics`` of a calibration take) fixes them, and then the stream equals
     windowed mode given the same statistics; without them the stream uses those of what it has seen so far
@@ -330,6 +382,7 @@ class EBFStream:
         fps: float,
         stats: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
         backend: str = "auto",
+        change_limit: float | None = None,
     ) -> None:
         if not isinstance(model, EBF):
             raise TypeError("EBFStream streams EBF (and BF) models")
@@ -361,6 +414,10 @@ class EBFStream:
         self.running = RunningStats(len(self.idx)) if clip_norm and stats is None else None
         fixed = (model.center.numpy(), model.scale.numpy(), model.angvel_scale.numpy())
         self._set_stats(stats if clip_norm and stats is not None else fixed)
+        limit = float(model.hparams.get("change_limit", 0.0)) if change_limit is None else change_limit
+        if limit < 0:
+            raise ValueError(f"change_limit must be >= 0, got {limit}")
+        self.check = RunningSelfCheck(len(self.idx), limit) if limit > 0 else None
 
     def _set_stats(self, stats: tuple[np.ndarray, np.ndarray, np.ndarray]) -> None:
         """Normalise with ``(center, scale, angvel_scale)`` from now on (torch modules and kernel)."""
@@ -399,12 +456,16 @@ class EBFStream:
         codes = self.model.encoder(self.model.features(window[None], angvel[None], self._stats))
         return self.model.blstm.lstm(codes)[0][0], window
 
-    def _frame_out(self, position: int, values: np.ndarray) -> tuple[int, np.ndarray]:
-        """``(frame index, channels)`` of window ``position`` with its scored channels set to ``values``."""
-        frame = self._window_start()[0] + position
-        out = self._frames.data[frame % self.width].copy()
-        out[self.idx] = values
-        return frame, out
+    def _finish(self, positions: list[int], values: np.ndarray) -> list[tuple[int, np.ndarray]]:
+        """``(frame index, channels)`` of each window position with its scored channels set to ``values [n, C]``
+        (after the self-check)."""
+        first = self._window_start()[0]
+        frames = [self._frames.data[(first + p) % self.width].copy() for p in positions]
+        if self.check is not None:
+            values = self.check.apply(np.stack([f[self.idx] for f in frames]), values)
+        for frame, v in zip(frames, values):
+            frame[self.idx] = v
+        return list(zip((first + p for p in positions), frames))
 
     @torch.inference_mode()
     def _emit(self, positions: list[int]) -> list[tuple[int, np.ndarray]]:
@@ -417,7 +478,7 @@ class EBFStream:
         taps = (pos[:, None] + torch.arange(-h, h + 1)).clamp(0, len(window) - 1)  # [n, K]
         filtered = (window[taps].permute(2, 0, 1) * weights).sum(-1).T  # [n, C]
         values = model.debias(filtered, params, self._stats["scale"])
-        return [self._frame_out(p, v) for p, v in zip(positions, values.double().numpy())]
+        return self._finish(positions, values.double().numpy())
 
     def _advance(self, frame: np.ndarray) -> list[tuple[int, np.ndarray]] | None:
         """Everything of ``push`` but the kernel: the frames that became final, or None when the centre frame
@@ -434,6 +495,8 @@ class EBFStream:
         self._scored.store(k, frame[self.idx])
         if self.running is not None:
             self.running.add(frame[self.idx])
+        if self.check is not None:
+            self.check.add(frame[self.idx])
         self.count += 1
         if self._prev_rot is None:
             self._prev_rot = rot
@@ -443,8 +506,11 @@ class EBFStream:
         if k == 1:
             self._set_angvel(0, angvel)  # frame 0 repeats frame 1's, as root_angular_velocity does
         self._set_angvel(k, angvel)
-        if self.running is not None and _stats_due(self.count, self.width):
-            self._refresh()
+        if _stats_due(self.count, self.width):
+            if self.running is not None:
+                self._refresh()
+            if self.check is not None:
+                self.check.refresh()
         if self.count < self.width:
             return []
         if self.count == self.width:
@@ -471,7 +537,7 @@ class EBFStream:
         else:
             proj, window = self._kernel_inputs()
             values = self._kernel.centre(proj[None], window[None], self._norm[1])[0]
-        return [self._frame_out(self.half, values.astype(np.float64))]
+        return self._finish([self.half], values[None].astype(np.float64))
 
     def flush(self) -> list[tuple[int, np.ndarray]]:
         """End of stream: the frames not returned yet."""
@@ -484,6 +550,8 @@ class EBFStream:
                 self.running.add_angvel(zero)
         if self.running is not None:
             self._refresh()
+        if self.check is not None:
+            self.check.refresh()
         if self.count < self.width:
             return self._emit(list(range(self.count)))
         return self._emit(list(range(self.half + 1, self.width)))
@@ -493,7 +561,8 @@ class EBFStreams:
     """``n`` ``EBFStream`` s of one network and skeleton pushed in lockstep (e.g. several performers or
     takes at once): ``push(frames [n, C])`` returns each stream's list of final frames; the centre frames of
     all streams come from one kernel call, whose batched products cost much less per stream than ``n`` single
-    calls. ``stats``: as for ``EBFStream``, one tuple for every stream or a list of ``n``. Outputs are those of
+    calls. ``stats``: as for ``EBFStream``, one tuple for every stream or a list of ``n``; ``change_limit`` as for
+    ``EBFStream``. Outputs are those of
     ``n`` separate ``EBFStream`` s (float32 rounding apart)."""
 
     def __init__(
@@ -503,13 +572,14 @@ class EBFStreams:
         fps: float,
         n: int,
         stats: tuple | list | None = None,
+        change_limit: float | None = None,
     ) -> None:
         if n < 1:
             raise ValueError(f"EBFStreams needs at least one stream, got n={n}")
         per_stream = stats if isinstance(stats, list) else [stats] * n
         if len(per_stream) != n:
             raise ValueError(f"EBFStreams: {len(per_stream)} statistics for {n} streams")
-        self.streams = [EBFStream(model, skeleton, fps, s, backend="numpy") for s in per_stream]
+        self.streams = [EBFStream(model, skeleton, fps, s, "numpy", change_limit) for s in per_stream]
         self._kernel = self.streams[0]._kernel
         for stream in self.streams[1:]:  # one kernel: its weights once, its buffers sized for n
             stream._kernel = self._kernel
@@ -527,7 +597,7 @@ class EBFStreams:
             scale = np.stack([self.streams[i]._norm[1] for i in due])
             values = self._kernel.centre(np.stack([p for p, _ in inputs]), np.stack([w for _, w in inputs]), scale)
             for i, v in zip(due, values.astype(np.float64)):
-                done[i] = [self.streams[i]._frame_out(self.half, v)]
+                done[i] = self.streams[i]._finish([self.half], v[None])
         return done
 
     def flush(self) -> list[list[tuple[int, np.ndarray]]]:

@@ -159,3 +159,42 @@ def test_backend_choice(sample, tiny, monkeypatch):
         EBFStream(model, sample.skeleton, sample.fps, backend="onnx")
     auto = EBFStream(model, sample.skeleton, sample.fps)  # falls back to numpy
     assert auto._onnx is None and auto._kernel is not None
+
+
+def _noisy(sample, start: int, length: int) -> np.ndarray:
+    """``length`` frames of the sample clip with white noise (σ 1°) on the scored channels."""
+    clip = sample.channels[start : start + length].copy()
+    idx = scored_index(sample.skeleton)
+    clip[:, idx] += np.random.default_rng(0).normal(0.0, 1.0, (length, len(idx)))
+    return clip
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_self_check_on_one_window_is_the_offline_one(backend, sample, tiny):
+    """A stream no longer than one window returns every frame at the flush with the whole clip's noise level
+    and RMS change: exactly ``limit_change`` of windowed mode."""
+    model = _varied(tiny("ebf-free", sample))
+    clip = _noisy(sample, 300, 25)
+    got = np.stack(
+        [f for _, f in _run(EBFStream(model, sample.skeleton, sample.fps, backend=backend, change_limit=0.5), clip)]
+    )
+    mask = np.zeros(clip.shape, bool)
+    offline = clean_channels(model, clip, mask, sample.skeleton, sample.fps, "windowed", change_limit=0.5)
+    assert np.abs(offline - _windowed(model, clip, sample)).max() > 0.1  # the check binds
+    np.testing.assert_allclose(got, offline, atol=1e-4)
+
+
+def test_running_self_check_follows_the_offline_one(sample, tiny):
+    """On a longer stream the caps come from the frames seen so far: closer to the offline self-check than the
+    unchecked stream is, and with the checkpoint's factor by default."""
+    model = _varied(tiny("ebf-free", sample, change_limit=0.5))
+    clip = _noisy(sample, 300, 300)
+    mask = np.zeros(clip.shape, bool)
+    offline = clean_channels(model, clip, mask, sample.skeleton, sample.fps, "windowed")  # the checkpoint's 0.5
+    stream = EBFStream(model, sample.skeleton, sample.fps)
+    assert stream.check is not None and stream.check.factor == 0.5
+    checked = np.stack([f for _, f in _run(stream, clip)])
+    plain = np.stack([f for _, f in _run(EBFStream(model, sample.skeleton, sample.fps, change_limit=0.0), clip)])
+    assert np.abs(checked - offline).mean() < 0.5 * np.abs(plain - offline).mean()
+    with pytest.raises(ValueError, match="change_limit"):
+        EBFStream(model, sample.skeleton, sample.fps, change_limit=-1.0)
