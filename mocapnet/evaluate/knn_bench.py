@@ -102,7 +102,20 @@ GATE_VARIANTS: tuple[dict, ...] = (
     {"twist": "blend"},
     {"twist": "blend", "limb_gate": 15.0},
 )
-GRIDS = {"main": TUNE_VARIANTS, "plateau": PLATEAU_VARIANTS, "twist": TWIST_VARIANTS, "gate": GATE_VARIANTS}
+# Round D (``--tune --grid still``): the gate relative to the limb's own motion.
+STILL_VARIANTS: tuple[dict, ...] = (
+    {},
+    {"still_gate": 1.0},
+    {"still_gate": 2.0},
+    {"twist": "blend", "still_gate": 1.0},
+)
+GRIDS = {
+    "main": TUNE_VARIANTS,
+    "plateau": PLATEAU_VARIANTS,
+    "twist": TWIST_VARIANTS,
+    "gate": GATE_VARIANTS,
+    "still": STILL_VARIANTS,
+}
 
 
 def evenly(items: Sequence, n: int) -> list:

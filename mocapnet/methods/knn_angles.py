@@ -32,8 +32,9 @@ For every *gap* (maximal run of frames in which some scored channel is missing):
    (motion the database lacks); the database where they agree. Positions cannot fix a joint's twist about
    a bone with one child; the IK keeps the twist of its reference (``twist``): linear interpolation, the kNN
    estimate, or their blend with weight β (``blend``; gated gaps: interpolation). With ``limb_gate``, a gap
-   whose limb distance exceeds it gets β = 0 (f alone). With the truth in the database σ = 0 and the fill
-   is exact.
+   whose limb distance exceeds it gets β = 0 (f alone); with ``still_gate``, one whose limb distance exceeds
+   that many times the limb's own motion in the margins (``limb_motion``). With the truth in the database
+   σ = 0 and the fill is exact.
 
 Observed samples and unscored channels are never changed; missing unscored channels are interpolated.
 """
@@ -152,15 +153,32 @@ def limb_rms(
     its neighbour windows (``starts [k]``, ``from_own [k]``; points ``stored [N, P, 3]``) over the points
     missing somewhere in ``gap`` (the limb), on the window's grid frames ``grid`` (from ``w0``) where they
     are observed (weights ``w [F, P]``, 0 where missing). NaN when the limb is never observed there."""
-    a, b = gap
-    inside = (grid >= a) & (grid < b)
-    limb = np.flatnonzero((w[inside] == 0).any(axis=0)) if inside.any() else np.array([], dtype=int)
+    limb = limb_points(w, grid, gap)
     wl = w[:, limb]
     if wl.sum() == 0:
         return float("nan")
     near = gather(stored[:, limb], feats[:, limb], starts, from_own, grid - w0)  # [F, k, L, 3]
     d2 = (((near - feats[grid][:, None, limb]) ** 2).sum(-1) * wl[:, None]).sum(axis=(0, 2))  # [k]
     return float(np.sqrt((kernel * d2).sum() / wl.sum()))
+
+
+def limb_points(w: np.ndarray, grid: np.ndarray, gap: tuple[int, int]) -> np.ndarray:
+    """Points missing somewhere in ``gap`` (the limb) among the window's query poses at frames ``grid [F]`` with
+    weights ``w [F, P]`` (0 where missing)."""
+    inside = (grid >= gap[0]) & (grid < gap[1])
+    return np.flatnonzero((w[inside] == 0).any(axis=0)) if inside.any() else np.array([], dtype=int)
+
+
+def limb_motion(feats: np.ndarray, grid: np.ndarray, w: np.ndarray, gap: tuple[int, int]) -> float:
+    """How much the limb (``limb_points``) moves in the window's margins: RMS distance (cm) of its points
+    ``feats [T, P, 3]`` from their own mean over the grid frames where they are observed. NaN when never."""
+    limb = limb_points(w, grid, gap)
+    seen = w[:, limb] > 0  # [F, L]
+    if not seen.any(axis=0).all() or not len(limb):
+        return float("nan")
+    pts = feats[grid][:, limb]  # [F, L, 3]
+    mean = (pts * seen[..., None]).sum(0) / seen.sum(0)[:, None]
+    return float(np.sqrt((((pts - mean) ** 2).sum(-1) * seen).sum() / seen.sum()))
 
 
 def fill_angles(
@@ -208,7 +226,13 @@ def fill_angles(
         limb = limb_rms(db.points, feats, nb.starts, nb.from_own, nb.grid, nb.w0, nb.weights, nb.kernel, (a, b))
         stats.limb_distance.append(limb)
         rms = limb if settings.limb_distance and np.isfinite(limb) else nb.rms
-        gated = settings.limb_gate is not None and np.isfinite(limb) and limb > settings.limb_gate
+        gated = np.isfinite(limb) and (
+            (settings.limb_gate is not None and limb > settings.limb_gate)
+            or (
+                settings.still_gate is not None
+                and limb > settings.still_gate * limb_motion(feats, nb.grid, nb.weights, (a, b))
+            )
+        )
         lo = nb.span[0]
         for u, c in enumerate(cols):
             near = base[nb.span, c][:, None] + wrap(traj[:, :, u] - base[nb.span, c][:, None])  # [S, k] degrees
@@ -248,7 +272,8 @@ def angle_filler(
     "angles",
     help="kNN in joint space from a large clean database (default: the largest corpus of the skeleton, cached), "
     "offset-corrected and blended with the clip's PCA fill; options k, margin_s, near_gain, speed, offset, "
-    "query_hz, distance_gain, own, fallback, max_weight, limb_distance, plateau_s, twist, limb_gate, database",
+    "query_hz, distance_gain, own, fallback, max_weight, limb_distance, plateau_s, twist, limb_gate, still_gate, "
+    "database",
 )
 def _knn_angles(
     context: MethodContext, database: str | None = None, **options: Any

@@ -149,7 +149,9 @@ class WindowSettings:
     positions cannot fix (twist about a bone with one child) from: ``lerp`` (linear interpolation), ``knn``
     (the kNN estimate) or ``blend`` (the kNN/interpolation blend with the fill's own weight β);
     ``limb_gate`` (cm, joint space): a gap whose neighbours' limb distance exceeds this takes
-    the fallback only (None: never)."""
+    the fallback only (None: never); ``still_gate`` (joint space): the same where the limb distance exceeds
+    this many times the limb's own motion in the window's margins (``knn_angles.limb_motion``; a limb that
+    hardly moves is left to the fallback unless the neighbours match it that closely)."""
 
     k: int = 16
     margin_s: float = 0.3
@@ -165,14 +167,15 @@ class WindowSettings:
     plateau_s: float | None = None
     twist: str = "lerp"
     limb_gate: float | None = None
+    still_gate: float | None = None
 
     def __post_init__(self) -> None:
-        positive = all(v is None or v > 0 for v in (self.plateau_s, self.limb_gate))
+        positive = all(v is None or v > 0 for v in (self.plateau_s, self.limb_gate, self.still_gate))
         choices = self.fallback in ("lerp", "pca") and self.twist in ("lerp", "knn", "blend")
         if self.k < 1 or not 0.0 <= self.max_weight <= 1.0 or not choices or not positive:
             raise ValueError(
                 "knn: k must be >= 1, max_weight in [0, 1], fallback lerp or pca, twist lerp, knn or blend, "
-                f"plateau_s and limb_gate > 0; got {self}"
+                f"plateau_s, limb_gate and still_gate > 0; got {self}"
             )
 
 
