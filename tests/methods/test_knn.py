@@ -31,7 +31,15 @@ from mocapnet.methods.knn import (
     normalise,
     upsample,
 )
-from mocapnet.methods.knn_angles import ANGLE_DEFAULTS, fill_angles, limb_rms, pca_angles, points_visible, wrap
+from mocapnet.methods.knn_angles import (
+    ANGLE_DEFAULTS,
+    fill_angles,
+    limb_motion,
+    limb_rms,
+    pca_angles,
+    points_visible,
+    wrap,
+)
 from mocapnet.methods.knn_database import SkeletonDatabase, cached_database, default_corpus
 from mocapnet.methods.knn_window import Searcher, WindowSettings, estimate_run
 from mocapnet.methods.pca import pca_fill
@@ -469,20 +477,21 @@ def _fallback(noisy: Motion, mask: np.ndarray, twist: np.ndarray) -> np.ndarray:
     return pca_angles(noisy, mask, twist, points_visible(sk, joint_missing))
 
 
-def test_limb_gate_falls_back_to_pca_and_keeps_the_truth(parts) -> None:
+def test_limb_gates_fall_back_to_pca_and_keep_the_truth(parts) -> None:
     """A gate below every neighbour's limb distance gives the PCA fallback itself; with the truth in the
     database the limb distance is 0, nothing is gated and the fill stays exact, twist option on or off."""
     truth = parts[1]
     noisy, mask = _segment_gap(truth, "segment-gap:left-arm:1", seed=4)
     other = SkeletonDatabase.from_motions([parts[0], parts[2]])
-    gated, stats = fill_angles(noisy, mask, other, WindowSettings(**{**ANGLE_DEFAULTS, "limb_gate": 1e-6}))
-    assert min(stats.limb_distance) > 1e-6
     scored = mask & truth.skeleton.scored_mask[None]
-    assert np.allclose(gated[scored], _fallback(noisy, mask, lerp_fill(noisy.channels, mask))[scored], atol=1e-9)
+    for gate in ({"limb_gate": 1e-6}, {"still_gate": 1e-9}):
+        gated, stats = fill_angles(noisy, mask, other, WindowSettings(**{**ANGLE_DEFAULTS, **gate}))
+        assert min(stats.limb_distance) > 1e-6
+        assert np.allclose(gated[scored], _fallback(noisy, mask, lerp_fill(noisy.channels, mask))[scored], atol=1e-9)
     db = SkeletonDatabase.from_motions([parts[0], truth.with_channels(truth.channels), parts[2]])
     db.names = ("part0", "copy of the truth", "part1800")
     for twist in ("lerp", "knn", "blend"):
-        settings = WindowSettings(**{**ANGLE_DEFAULTS, "limb_gate": 1.0, "twist": twist})
+        settings = WindowSettings(**{**ANGLE_DEFAULTS, "limb_gate": 1.0, "still_gate": 1.0, "twist": twist})
         out, _ = fill_angles(noisy, mask, db, settings)
         assert _gap_rms(out, truth.channels, mask) < 1e-3
 
@@ -502,3 +511,14 @@ def test_twist_from_knn_changes_the_fallback_angles_not_its_positions(parts) -> 
     assert np.abs(wrap(twisted - plain))[scored].max() > 1.0  # the twist differs
     pos = [joint_positions(noisy.with_channels(c), end_sites=True) for c in (plain, twisted)]
     assert np.abs(pos[0] - pos[1]).max() < 1e-6
+
+
+def test_limb_motion_is_the_limbs_own_rms_about_its_mean_where_observed() -> None:
+    feats = np.zeros((10, 3, 3))
+    feats[:, 2, 0] = np.where(np.arange(10) % 2 == 0, 2.0, -2.0)  # point 2 swings ±2 cm about 0
+    feats[:, 0] = 50.0 * np.arange(10)[:, None]  # an observed point moving a lot: not the limb
+    w = np.ones((10, 3))
+    w[4:6, 2] = 0.0  # point 2 missing in the gap [4, 6)
+    assert np.isclose(limb_motion(feats, np.arange(10), w, (4, 6)), 2.0)
+    w[:, 2] = 0.0
+    assert np.isnan(limb_motion(feats, np.arange(10), w, (4, 6)))
