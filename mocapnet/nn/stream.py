@@ -1,6 +1,7 @@
-"""Frame-by-frame EBF cleaning with a fixed lookahead (windowed mode, ``mocapnet.nn.infer``): ``EBFStream``, its
-numpy kernel for the steady state (``_CentreKernel``) and the running input statistics of a clip-normalised
-network (``RunningStats``).
+"""Frame-by-frame EBF cleaning with a fixed lookahead (windowed mode, ``mocapnet.nn.infer``): ``EBFStream`` (and
+``EBFStreams``, several streams in lockstep), the numpy kernel of its steady state (``_CentreKernel``; the ONNX
+Runtime one is ``onnx_kernel``), the running input statistics of a clip-normalised network (``RunningStats``)
+and the causal self-check (``RunningSelfCheck``).
 
 The steady state costs one windowed-mode output per frame: 47 sequential LSTM steps (layer 1 over the 31-frame
 window, both directions at once; layer 2 over the 16 steps its centre output depends on, both directions at
@@ -372,7 +373,9 @@ class EBFStream:
     ``norm="clip"`` network needs the clip's statistics: ``stats`` (``(center [C_s], scale [C_s],
     angvel_scale [3])``, e.g. ``clip_statistics`` of a calibration take) fixes them, and then the stream equals
     windowed mode given the same statistics; without them the stream uses those of what it has seen so far
-    (``RunningStats``, refreshed on ``_stats_due`` frames; the flush refreshes them with every frame).
+    (``RunningStats``, refreshed on ``_stats_due`` frames; the flush refreshes them with every frame; the ONNX
+    kernel normalises the whole window with the current statistics at every frame, the numpy kernel keeps each
+    frame's layer-1 input from the statistics it arrived under until a refresh recomputes the window's).
     """
 
     def __init__(
