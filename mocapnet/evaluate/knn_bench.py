@@ -429,7 +429,7 @@ def markdown(report: dict) -> str:
         "folds 2-4; for bandai1 all of it). Metrics of PROTOCOL.md; ratios in the overview tables are to lerp, "
         "in the per-corruption tables to the better of lerp and spline (the one reference rule).",
         f"- knn settings (BVH), the defaults now: `{WindowSettings(**ANGLE_DEFAULTS)}`, chosen on bandai2 fold 1 "
-        "(`knn_tuning.md`, then `knn_tuning_plateau.md`; `knn_tuning_twist.md` and `knn_tuning_gate.md` changed "
+        "(`knn_tuning.md`, then `knn_tuning_plateau.md`; `knn_tuning_twist.md`, `_gate.md` and `_still.md` changed "
         "nothing). C3D knn: the registered "
         "default (`search=energy`).",
         "",
