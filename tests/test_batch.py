@@ -59,6 +59,18 @@ def _start(args: list[str], log: Path) -> subprocess.Popen:
     return subprocess.Popen(args, stdout=log.open("w"), stderr=subprocess.STDOUT, env={**os.environ, "PYTHONPATH": ""})
 
 
+def _scheduler_address(path, deadline: float) -> str:
+    """The address in a dask scheduler file, once the scheduler has written it whole (it creates the file
+    first and writes it afterwards, so a loaded machine can show an empty or partial file)."""
+    while True:
+        try:
+            return json.loads(path.read_text())["address"]
+        except (FileNotFoundError, json.JSONDecodeError, KeyError):
+            if time.monotonic() > deadline:
+                raise
+            time.sleep(0.2)
+
+
 def test_folder_through_scheduler_address_equals_one_file_cleans(archive, tmp_path):
     """A scheduler and two workers on 127.0.0.1 (separate processes), reached by --scheduler tcp://…"""
     from distributed import Client
@@ -71,10 +83,7 @@ def test_folder_through_scheduler_address_equals_one_file_cleans(archive, tmp_pa
         )
     ]  # fmt: skip
     try:
-        deadline = time.monotonic() + 60
-        while not scheduler_file.exists() and time.monotonic() < deadline:
-            time.sleep(0.2)
-        address = json.loads(scheduler_file.read_text())["address"]
+        address = _scheduler_address(scheduler_file, deadline=time.monotonic() + 60)
         assert address.startswith("tcp://127.0.0.1:")
         for i in range(2):
             procs.append(
