@@ -159,15 +159,21 @@ def speed(methods: Sequence[str], repeats: int) -> dict:
 LOCKSTEP_STREAMS = 8
 
 
-def push_times(push, frames: np.ndarray, skip: int) -> tuple[np.ndarray, np.ndarray]:
-    """CPU (``time.thread_time_ns``) and wall milliseconds of each ``push(frame)`` over ``frames [N, ...]``,
-    the first ``skip`` (the first window, run by the torch modules) left out."""
-    cpu, wall = np.zeros(len(frames)), np.zeros(len(frames))
-    for i, frame in enumerate(frames):
-        c0, w0 = time.thread_time_ns(), time.perf_counter_ns()
-        push(frame)
-        cpu[i], wall[i] = time.thread_time_ns() - c0, time.perf_counter_ns() - w0
-    return cpu[skip:] / 1e6, wall[skip:] / 1e6
+def push_times(pushes: dict, frames: dict, skip: int, rounds: int) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """CPU (``time.thread_time_ns``) and wall milliseconds of each call ``pushes[key](frame)`` over
+    ``frames[key] [N, ...]``, the first ``skip`` (the first window, run by the torch modules) left out. The keys
+    take turns in ``rounds`` rounds of ``N / rounds`` frames each, so that they share the machine's changing
+    load."""
+    n = len(next(iter(frames.values())))
+    times = {k: (np.zeros(n), np.zeros(n)) for k in pushes}
+    for chunk in np.array_split(np.arange(n), rounds):
+        for key, push in pushes.items():
+            cpu, wall = times[key]
+            for i in chunk:
+                c0, w0 = time.thread_time_ns(), time.perf_counter_ns()
+                push(frames[key][i])
+                cpu[i], wall[i] = time.thread_time_ns() - c0, time.perf_counter_ns() - w0
+    return {k: (cpu[skip:] / 1e6, wall[skip:] / 1e6) for k, (cpu, wall) in times.items()}
 
 
 def _percentiles(cpu_ms: np.ndarray, wall_ms: np.ndarray, per: int = 1) -> dict:
@@ -178,12 +184,13 @@ def _percentiles(cpu_ms: np.ndarray, wall_ms: np.ndarray, per: int = 1) -> dict:
     return out
 
 
-def streaming(clip: Motion, methods: Sequence[str], n_frames: int) -> dict:
+def streaming(clip: Motion, methods: Sequence[str], n_frames: int, rounds: int = 6) -> dict:
     """Per-frame cost of streaming each shipped EBF method on ``n_frames`` of angular-0.5 noise: CPU time
     (``time.thread_time_ns``, what the machine's other load least disturbs) and wall time per
     ``EBFStream.push``, p50 and p99 over the pushes after the first window, for each kernel (``numpy``;
-    ``onnx`` when installed), and per stream of ``LOCKSTEP_STREAMS`` streams pushed together (``EBFStreams``:
-    one push's time ÷ the streams), with the load average before and after."""
+    ``onnx`` when installed) and per stream of ``LOCKSTEP_STREAMS`` streams pushed together (``EBFStreams``:
+    one push's time ÷ the streams), taking turns in ``rounds`` rounds (``push_times``), with the load average
+    before and after."""
     from mocapnet.nn import onnx_kernel
     from mocapnet.nn.checkpoints import shipped_checkpoint
     from mocapnet.nn.infer import load_model
@@ -191,19 +198,17 @@ def streaming(clip: Motion, methods: Sequence[str], n_frames: int) -> dict:
 
     noisy, _ = corrupt_motion(clip, "angular-0.5", np.random.default_rng(1))
     frames = noisy[:n_frames]
+    n = LOCKSTEP_STREAMS
+    batch = np.stack([np.roll(frames, 7 * i, axis=0) for i in range(n)], axis=1)  # [N, n, C]
     backends = ["numpy"] + (["onnx"] if onnx_kernel.available() else [])
-    out: dict = {"load_before": list(os.getloadavg())}
+    out: dict = {"load_before": list(os.getloadavg()), "rounds": rounds}
     for name in methods:
         model = load_model(shipped_checkpoint(name, clip.skeleton))
-        rows = {}
-        for backend in backends:
-            stream = EBFStream(model, clip.skeleton, clip.fps, backend=backend)
-            rows[backend] = _percentiles(*push_times(stream.push, frames, stream.width + 1))
-        n = LOCKSTEP_STREAMS
-        streams = EBFStreams(model, clip.skeleton, clip.fps, n)
-        batch = np.stack([np.roll(frames, 7 * i, axis=0) for i in range(n)], axis=1)  # [N, n, C]
-        rows[f"numpy x{n}"] = _percentiles(*push_times(streams.push, batch, streams.width + 1), per=n)
-        out[name] = rows
+        pushes = {b: EBFStream(model, clip.skeleton, clip.fps, backend=b).push for b in backends}
+        pushes[f"numpy x{n}"] = EBFStreams(model, clip.skeleton, clip.fps, n).push
+        inputs = {key: batch if key.endswith(f"x{n}") else frames for key in pushes}
+        times = push_times(pushes, inputs, 2 * model.hparams.half + 2, rounds)
+        out[name] = {key: _percentiles(*t, per=n if key.endswith(f"x{n}") else 1) for key, t in times.items()}
     out["load_after"] = list(os.getloadavg())
     return out
 
@@ -324,7 +329,8 @@ def streaming_markdown(st: dict, run: dict | None = None) -> list[str]:
     rerun = [f"Streaming rerun alone: `{run['command']}` at `{run['git_commit']}`.", ""] if run else []
     lines = rerun + [
         f"Streaming, 1 thread: time per frame of EBFStream.push after the first window (load average {load}); "
-        "CPU = time.thread_time_ns; `numpy xN`: N streams pushed together (EBFStreams), per stream:",
+        f"CPU = time.thread_time_ns; kernels taking turns in {st.get('rounds', 1)} rounds; `numpy xN`: N streams "
+        "pushed together (EBFStreams), per stream:",
         "",
     ]
     rows = [
