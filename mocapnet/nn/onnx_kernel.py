@@ -49,6 +49,8 @@ class OnnxKernel:
         import onnxruntime as ort
         from onnx import TensorProto, helper, numpy_helper
 
+        from mocapnet.nn.stream import _dense_layers  # here: stream imports this module
+
         hp = model.hparams
         lstm, half, n_ch = model.blstm.lstm, hp.half, hp.n_channels
         width, hid, n_filter = 2 * half + 1, lstm.hidden_size, model.n_filter
@@ -64,13 +66,10 @@ class OnnxKernel:
             return out
 
         def dense(x: str, seq: torch.nn.Module, prefix: str) -> str:
-            mods = list(seq) if isinstance(seq, torch.nn.Sequential) else []
-            for i, mod in enumerate(mods):
-                if isinstance(mod, torch.nn.Linear):
-                    wt = mod.weight.detach().numpy().T
-                    x = node("MatMul", [x, const(f"{prefix}{i}_w", wt)], f"{prefix}{i}_mm")
-                    x = node("Add", [x, const(f"{prefix}{i}_b", mod.bias.detach().numpy())], f"{prefix}{i}_add")
-                elif isinstance(mod, torch.nn.Tanh):
+            for i, (weight_t, bias, tanh) in enumerate(_dense_layers(seq)):
+                x = node("MatMul", [x, const(f"{prefix}{i}_w", weight_t)], f"{prefix}{i}_mm")
+                x = node("Add", [x, const(f"{prefix}{i}_b", bias)], f"{prefix}{i}_add")
+                if tanh:
                     x = node("Tanh", [x], f"{prefix}{i}_tanh")
             return x
 
