@@ -28,6 +28,7 @@ def main() -> None:
     parser.add_argument("--clips", type=int, default=None, help="N evenly spaced fold-0 clips (default: all)")
     parser.add_argument("--repeats", type=int, default=None, help="default 5 (test), 2 (--tune)")
     parser.add_argument("--tune", action="store_true", help="score blend settings on bandai2 fold 1")
+    parser.add_argument("--grid", default="around", choices=("around", "gates"), help="--tune's blend settings")
     parser.add_argument("--checkpoint", default=None, help="an EBD checkpoint instead of the shipped one")
     parser.add_argument("--out", default=None, help="path without suffix")
     args = parser.parse_args()
@@ -36,7 +37,7 @@ def main() -> None:
     name = "neural_gaps_tune" if args.tune else f"neural_gaps_{args.corpus}"
     out = Path(args.out or ROOT / "benchmarks" / "results" / name)
     result = (
-        gap_bins.tune(args.repeats or 2, args.checkpoint)
+        gap_bins.tune(args.repeats or 2, args.checkpoint, args.grid)
         if args.tune
         else gap_bins.test(args.corpus, args.clips, args.repeats or 5, args.checkpoint)
     )

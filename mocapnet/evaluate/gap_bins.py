@@ -123,11 +123,27 @@ def select(scores: Mapping[str, Mapping[str, float]], tie: float = 0.005) -> str
     return min((k for k in scores if worst[k] <= best + tie), key=lambda k: float(np.mean(list(scores[k].values()))))
 
 
-def candidates() -> dict:
-    """Blend settings scored by ``tune``: one parameter at a time around the shipped ``GAP_BLEND``; "no
-    check" (self-check off) is the self-check's baseline."""
+def candidates(grid: str = "around") -> dict:
+    """Blend settings scored by ``tune``. ``grid="around"``: one parameter at a time around the shipped
+    ``GAP_BLEND``; ``"gates"``: longer length gates (0.3–0.5 s) with a spline base up to 0.25 or 0.5 s. "no
+    check" (self-check off) is the self-check's baseline in both."""
     from mocapnet.nn.ebd import GAP_BLEND
 
+    if grid == "gates":
+        gates = ((1 / 30, 0.3), (1 / 30, 0.4), (0.1, 0.4), (0.1, 0.5))
+        return {
+            **{
+                f"gate {lo:.3g}-{hi:g} s, spline <= {sm:g} s": dataclasses.replace(
+                    GAP_BLEND, gate_s=(lo, hi), spline_max_s=sm
+                )
+                for lo, hi in gates
+                for sm in (0.25, 0.5)
+            },
+            "shipped": GAP_BLEND,
+            "no check": dataclasses.replace(GAP_BLEND, speed_factor=OFF),
+        }
+    if grid != "around":
+        raise ValueError(f"grid must be 'around' or 'gates', got {grid!r}")
     return {
         "shipped": GAP_BLEND,
         "no check": dataclasses.replace(GAP_BLEND, speed_factor=OFF),
@@ -154,8 +170,8 @@ def raw_filler(clip: Motion, checkpoint: str | None = None) -> Callable[[Motion,
     return lambda m, mask: clean_channels(model, m.channels, mask, m.skeleton, m.fps, gap_blend=None)
 
 
-def tune(repeats: int, checkpoint: str | None = None) -> dict:
-    """Score ``candidates()`` and the raw network (``checkpoint``, default the shipped EBD) on bandai2 fold 1
+def tune(repeats: int, checkpoint: str | None = None, grid: str = "around") -> dict:
+    """Score ``candidates(grid)`` and the raw network (``checkpoint``, default the shipped EBD) on bandai2 fold 1
     (``ratios``): the blend geometry selected by ``select`` and the self-check by the most fallbacks within
     0.5 % of the mean ratio without it."""
     from mocapnet.methods.registry import build_method
@@ -165,7 +181,7 @@ def tune(repeats: int, checkpoint: str | None = None) -> dict:
     fillers = {n: build_method(n).clean for n in REFERENCES} | {"ebd-raw": raw_filler(clips[0], checkpoint)}
     filled = {c: fill_clips("bandai2", clips, c, repeats, fillers) for c in TUNE}
     scores, fallbacks = {"ebd-raw": ratios(filled, "ebd-raw")}, {}
-    for label, blend in candidates().items():
+    for label, blend in candidates(grid).items():
         fallbacks[label] = 0
         for it in (it for items in filled.values() for it in items):
             o = it.outputs
