@@ -9,6 +9,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 
+import numpy as np
 import torch
 from torch import nn
 
@@ -167,3 +168,16 @@ def init_log_sigma_bias(layer: nn.Linear, sigma_frames: float) -> None:
     """Start a σ head near ``sigma_frames`` everywhere: small weights, bias ``log σ``."""
     nn.init.uniform_(layer.weight, -1e-3, 1e-3)
     nn.init.constant_(layer.bias, math.log(sigma_frames))
+
+
+def dense_layers(seq: nn.Module) -> list[tuple[np.ndarray, np.ndarray, bool]]:
+    """``(weightᵀ, bias, tanh after)`` of each Linear of an ``mlp`` (an Identity gives none), as float32 numpy
+    arrays for the numpy and ONNX streaming kernels."""
+    mods = list(seq) if isinstance(seq, nn.Sequential) else []
+    out = []
+    for i, mod in enumerate(mods):
+        if isinstance(mod, nn.Linear):
+            tanh = i + 1 < len(mods) and isinstance(mods[i + 1], nn.Tanh)
+            weight_t = np.ascontiguousarray(mod.weight.detach().numpy().astype(np.float32).T)
+            out.append((weight_t, mod.bias.detach().numpy().astype(np.float32), tanh))
+    return out

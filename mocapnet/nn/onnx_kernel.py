@@ -14,6 +14,7 @@ import numpy as np
 import torch
 
 from mocapnet.nn.ebf import EBF
+from mocapnet.nn.layers import dense_layers
 
 #: ONNX's LSTM gate order is (i, o, f, c); torch's (i, f, g, o), g being ONNX's c.
 _ONNX_FROM_TORCH = (0, 3, 1, 2)
@@ -49,8 +50,6 @@ class OnnxKernel:
         import onnxruntime as ort
         from onnx import TensorProto, helper, numpy_helper
 
-        from mocapnet.nn.stream import _dense_layers  # here: stream imports this module
-
         hp = model.hparams
         lstm, half, n_ch = model.blstm.lstm, hp.half, hp.n_channels
         width, hid, n_filter = 2 * half + 1, lstm.hidden_size, model.n_filter
@@ -66,7 +65,7 @@ class OnnxKernel:
             return out
 
         def dense(x: str, seq: torch.nn.Module, prefix: str) -> str:
-            for i, (weight_t, bias, tanh) in enumerate(_dense_layers(seq)):
+            for i, (weight_t, bias, tanh) in enumerate(dense_layers(seq)):
                 x = node("MatMul", [x, const(f"{prefix}{i}_w", weight_t)], f"{prefix}{i}_mm")
                 x = node("Add", [x, const(f"{prefix}{i}_b", bias)], f"{prefix}{i}_add")
                 if tanh:

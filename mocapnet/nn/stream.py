@@ -28,6 +28,7 @@ from mocapnet.nn.features import (
     scored_index,
 )
 from mocapnet.nn.infer import check_skeleton
+from mocapnet.nn.layers import dense_layers
 
 #: Kernels of the steady state (``EBFStream``).
 BACKENDS = ("auto", "numpy", "onnx")
@@ -74,8 +75,8 @@ class _CentreKernel:
         wih1 = gates("weight_ih", 1)  # [4, 2, H, 2H]
         self.wih1_t = [np.ascontiguousarray(wih1[:, d].reshape(4 * hid, -1).T) for d in (0, 1)]  # [2H, 4H]
         self.bias1 = [np.ascontiguousarray(bias[1][:, d, None]) for d in (0, 1)]  # [4, 1, H]
-        self.encoder = _dense_layers(model.encoder)
-        self.head = _dense_layers(model.head)
+        self.encoder = dense_layers(model.encoder)
+        self.head = dense_layers(model.head)
         hp = model.hparams
         self.half, self.n_channels, self.n_filter = hp.half, hp.n_channels, model.n_filter
         self.free, self.has_bias = hp.filter_shape == "free", bool(hp.bias)
@@ -195,20 +196,8 @@ class _CentreKernel:
         return values
 
 
-def _dense_layers(seq: torch.nn.Module) -> list[tuple[np.ndarray, np.ndarray, bool]]:
-    """``(weightᵀ, bias, tanh after)`` of each Linear of a ``layers.mlp`` (an Identity gives none)."""
-    mods = list(seq) if isinstance(seq, torch.nn.Sequential) else []
-    out = []
-    for i, mod in enumerate(mods):
-        if isinstance(mod, torch.nn.Linear):
-            tanh = i + 1 < len(mods) and isinstance(mods[i + 1], torch.nn.Tanh)
-            weight_t = np.ascontiguousarray(mod.weight.detach().numpy().astype(np.float32).T)
-            out.append((weight_t, mod.bias.detach().numpy().astype(np.float32), tanh))
-    return out
-
-
 def _run_dense(layers: list[tuple[np.ndarray, np.ndarray, bool]], x: np.ndarray) -> np.ndarray:
-    """Rows ``x [N, F]`` through the dense layers of ``_dense_layers``."""
+    """Rows ``x [N, F]`` through the dense layers of ``layers.dense_layers``."""
     for weight_t, bias, tanh in layers:
         x = x @ weight_t
         x += bias
