@@ -196,13 +196,14 @@ def tune(repeats: int, checkpoint: str | None = None, grid: str = "around") -> d
 
 def choose(scores: Mapping[str, Mapping[str, float]], fallbacks: Mapping[str, int]) -> dict[str, str]:
     """The pre-written rules applied to ``tune``'s scores: the blend geometry by ``select`` among "shipped", the
-    geometry candidates (all with the shipped self-check) and "ebd-raw" (no blend, no check); the self-check by
+    geometry candidates (all with the shipped self-check; "no gate or taper" is the network's own fill) — not
+    "ebd-raw", which has no self-check and so is no storable setting; the self-check by
     the most fallbacks among the "check" candidates and "shipped" whose mean ratio is within 0.5 % of "no
     check"'s."""
     mean = {k: float(np.mean(list(v.values()))) for k, v in scores.items()}
     checks = [k for k in scores if k.startswith("check") or k == "shipped"]
     check = max((k for k in checks if mean[k] <= 1.005 * mean["no check"]), key=fallbacks.get, default="no check")
-    geometry = {k: v for k, v in scores.items() if k == "shipped" or k not in (*checks, "no check")}
+    geometry = {k: v for k, v in scores.items() if k == "shipped" or k not in (*checks, "no check", "ebd-raw")}
     return {"selected": select(geometry), "check": check}
 
 

@@ -14,7 +14,8 @@ A variant name given a checkpoint checks that the checkpoint is that variant; ``
     --method ebf:mode=windowed,checkpoints=run/best.ckpt   both
     --method ebd+ebf=ebd.ckpt,ebf.ckpt:mode=windowed       both, with two checkpoints
 
-Gaps are filled by linear interpolation before any network; EBD's fill of each gap is then blended with the
+Gaps are filled by linear interpolation before any network (an EBD: by the interpolation it was trained to
+correct, ``EBD.interpolate``); EBD's fill of each gap is then blended with the
 better interpolation for its length and self-checked (``mocapnet.nn.ebd.blend_gaps``).
 Only the scored channels change. torch is imported when a method is built, never by ``import mocapnet``.
 

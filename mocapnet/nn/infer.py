@@ -177,6 +177,8 @@ def clean_channels(
     """
     if mode not in MODES:
         raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
+    if isinstance(gap_blend, str) and gap_blend != "checkpoint":
+        raise ValueError(f"gap_blend must be a GapBlend, 'checkpoint' or None, got {gap_blend!r}")
     result = model.interpolate(channels, mask, fps) if isinstance(model, EBD) else lerp_fill(channels, mask)
     idx = scored_index(skeleton)
     x = torch.as_tensor(result[:, idx], dtype=torch.float32)

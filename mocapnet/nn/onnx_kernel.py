@@ -1,4 +1,4 @@
-"""EBF's streaming step in ONNX Runtime (optional: ``pip install mocapnet[onnx]``): the centre frame of a full
+"""EBF's streaming step in ONNX Runtime (optional: ``pip install -e '.[onnx]'``): the centre frame of a full
 window as one ONNX graph (normalisation, encoder, both LSTM layers, head, filter), run on the calling thread.
 
 Same computation as ``stream._CentreKernel`` (and windowed mode): ONNX Runtime runs the 47 sequential LSTM steps

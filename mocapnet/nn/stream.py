@@ -280,7 +280,7 @@ class RunningSelfCheck:
     ``infer.noise_level``'s estimate (MAD of second differences) over the last ``HISTORY`` frames, refreshed
     on the running statistics' schedule (``_stats_due``) and at the flush; the RMS change is that of every
     frame returned so far, the frames being returned included; frames returned together (the first window, the
-    flush) share one cap. A stream no longer than one window thus gets exactly ``limit_change`` of windowed
+    flush) share one cap. A stream shorter than one window thus gets exactly ``limit_change`` of windowed
     mode; on a longer one the early frames see estimates from fewer frames."""
 
     HISTORY = 4096
@@ -357,7 +357,7 @@ class EBFStream:
     through one (numpy) kernel call per frame.
 
     ``change_limit``: the self-check factor (None: the checkpoint's ``change_limit``; 0: none), applied causally
-    (``RunningSelfCheck``). Without it (or on a stream no longer than one window) a ``norm="corpus"`` network
+    (``RunningSelfCheck``). Without it (or on a stream shorter than one window) a ``norm="corpus"`` network
     gives exactly ``clean_channels(..., mode="windowed")`` on the whole clip. A
     ``norm="clip"`` network needs the clip's statistics: ``stats`` (``(center [C_s], scale [C_s],
     angvel_scale [3])``, e.g. ``clip_statistics`` of a calibration take) fixes them, and then the stream equals
@@ -398,7 +398,14 @@ class EBFStream:
         self._chain = context_chain(skeleton)
         usable = _CentreKernel.usable(model)
         use_onnx = usable and (backend == "onnx" or (backend == "auto" and onnx_kernel.available()))
-        self._onnx = onnx_kernel.OnnxKernel(model) if use_onnx else None
+        self._onnx = None
+        if use_onnx:
+            try:
+                self._onnx = onnx_kernel.OnnxKernel(model)
+            except (ImportError, OSError):  # installed but unusable (e.g. a missing shared library)
+                if backend == "onnx":
+                    raise
+                use_onnx = False
         self._kernel = _CentreKernel(model) if usable and not use_onnx else None
         if self._kernel is not None:
             self._proj = _Ring(width, (4, 2, self._kernel.hidden), np.float32)

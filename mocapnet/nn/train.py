@@ -87,7 +87,16 @@ def resume_path(ckpt_path: str | None, ckpt_dir: Path) -> str | None:
 
 
 def build(cfg: DictConfig) -> tuple[MotionDataModule, CleanerModule]:
-    """Data module (set up) and a fresh model sized for it, with its normaliser set."""
+    """Data module (set up) and a fresh model sized for it, with its normaliser set. The interpolation the data
+    puts into gaps (``data.spline_max_s``) must be the one the model corrects (an EBD's ``spline_max_s``; other
+    networks are run on linear interpolation), else ValueError."""
+    data_spline = float(cfg.data.get("spline_max_s", 0.0))
+    model_spline = float(cfg.model.get("spline_max_s", 0.0))
+    if data_spline != model_spline:
+        raise ValueError(
+            f"data.spline_max_s={data_spline:g} but model.spline_max_s={model_spline:g}: a network must be trained on "
+            "the interpolation it is run on (set both, e.g. model.spline_max_s=${data.spline_max_s}, on an EBD)"
+        )
     data: MotionDataModule = hydra.utils.instantiate(cfg.data, seed=cfg.seed, _convert_="all")
     data.setup("fit")
     model: CleanerModule = hydra.utils.instantiate(

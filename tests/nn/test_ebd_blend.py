@@ -116,6 +116,8 @@ def test_the_blend_stored_with_a_network_is_the_one_it_uses(tiny, sample):
     args = (noisy, mask, sample.skeleton, sample.fps)
     np.testing.assert_array_equal(clean_channels(model, *args), clean_channels(model, *args, gap_blend=PURE_NETWORK))
     with pytest.raises(ValueError, match="gap_blend"):
+        clean_channels(model, *args, gap_blend="stored")
+    with pytest.raises(ValueError, match="gap_blend"):
         tiny("ebd", sample, gap_blend={"taper": 1.0})
     with pytest.raises(ValueError, match="gate_s"):
         tiny("ebd", sample, gap_blend={"gate_s": [0.1]})

@@ -144,3 +144,11 @@ def test_cosine_schedule_decays_within_the_budget_and_checkpoints_stay_plain(tmp
         and values[2] == pytest.approx(0.0002 + 0.0049 * (1 + math.cos(math.pi * 0.48 / 0.98)))
         and values[3] == 0.0002
     )
+
+
+def test_data_and_model_must_agree_on_the_gap_interpolation():
+    from mocapnet.nn.train import build, compose_config
+
+    cfg = compose_config(["experiment=sample_quick", "model=ebd", "+data.spline_max_s=0.5"])
+    with pytest.raises(ValueError, match="spline_max_s"):
+        build(cfg)
