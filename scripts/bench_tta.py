@@ -22,7 +22,7 @@ from mocapnet.corpus import load_corpus
 from mocapnet.corrupt import corrupt_motion, seed_for
 from mocapnet.evaluate.metrics import angle_err_deg
 from mocapnet.evaluate.neural_bench import long_clip, split_clips
-from mocapnet.evaluate.results import fmt, markdown_table, provenance, write_results
+from mocapnet.evaluate.results import fmt, markdown_table, provenance, provenance_header, write_results
 from mocapnet.methods.neural import augmented_pass, tta_mean, tta_passes
 from mocapnet.methods.registry import MethodContext, build_method
 from mocapnet.nn.features import scored_index
@@ -113,13 +113,8 @@ PASS_NAMES = {
 
 def markdown(result: dict) -> str:
     """The results file: provenance, the cost table and/or the per-pass table."""
-    lines = [
-        "# Test-time augmentation of the shipped ebf: cost (CPU time, 1 thread) and the error of each pass",
-        "",
-        f"Command: `{result['command']}`  ",
-        f"Git commit: `{result['git_commit']}`; load average at start {result['load']} ({result['machine']}).",
-        "",
-    ]
+    title = "Test-time augmentation of the shipped ebf: cost (CPU time, 1 thread) and the error of each pass"
+    lines = provenance_header(title, result)
     if "cost" in result:
         c, rows = result["cost"], result["cost"]["rows"]
         lines += [

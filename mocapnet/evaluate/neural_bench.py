@@ -32,6 +32,7 @@ from mocapnet.evaluate import gap_bins as gap_bins_module
 from mocapnet.evaluate.harness import Evaluation, corpus_references, evaluate_angles, has_gaps
 from mocapnet.evaluate.metrics import angle_err_deg
 from mocapnet.evaluate.report import fmt, markdown_table, summarize
+from mocapnet.evaluate.results import provenance_header
 from mocapnet.methods.registry import build_method
 from mocapnet.motion import Motion
 from mocapnet.threads import pin_threads
@@ -262,13 +263,7 @@ def rss_run(method: str) -> None:
 
 def markdown(result: dict) -> str:
     """The results file: provenance, the quality table, the gap-length bins and the speed table."""
-    lines = [
-        "# Learned cleaners (EBF variants, EBD): quality across corpora and speed",
-        "",
-        f"Command: `{result['command']}`  ",
-        f"Git commit: `{result['git_commit']}`; load average at start {result['load']} ({result['machine']}).",
-        "",
-    ]
+    lines = provenance_header("Learned cleaners (EBF variants, EBD): quality across corpora and speed", result)
     if result.get("quality"):
         lines += markdown_table(
             ("corpus", "split", "corruption", "clips × repeats", "method", "headline °", "ratio", "frames/s"),

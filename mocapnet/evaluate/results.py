@@ -12,7 +12,7 @@ import os
 import platform
 import shlex
 import sys
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 from typing import IO, Any
@@ -94,3 +94,15 @@ def provenance(argv: Sequence[str] | None = None) -> dict[str, str]:
         f"OMP_NUM_THREADS={os.environ.get('OMP_NUM_THREADS', 'unset')}"
     )
     return {"command": command, "git_commit": git_commit(), "machine": machine}
+
+
+def provenance_header(title: str, result: Mapping[str, Any]) -> list[str]:
+    """The first lines of a results Markdown file: ``# title``, then the command, git commit, load average and
+    machine that ``provenance`` (plus a ``load`` entry) recorded in ``result``."""
+    return [
+        f"# {title}",
+        "",
+        f"Command: `{result['command']}`  ",
+        f"Git commit: `{result['git_commit']}`; load average at start {result['load']} ({result['machine']}).",
+        "",
+    ]
