@@ -846,7 +846,7 @@ def fill_markers(
                     t, est, beta = estimate_run(
                         b_c, traj[:, :, u, c], nb.kernel, seconds[:, m], lo, run, nb.rms, settings
                     )
-                    out[t, m, c] = b_c[t] + beta * (est - b_c[t])
+                    out[t, m, c] = np.where(beta == 1.0, est, b_c[t] + beta * (est - b_c[t]))  # β = 1: est exactly
     result = markers.points.copy()
     result[missing] = denormalise(out, origin, rot)[missing]
     stats.total_s = time.process_time() - t_start

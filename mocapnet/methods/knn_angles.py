@@ -247,7 +247,8 @@ def fill_angles(
         anchor = pca_angles(motion, mask, twist, visible)
     else:
         anchor = base
-    out[filled] = anchor[filled] + beta[filled] * (est[filled] - anchor[filled])
+    a, b, e = anchor[filled], beta[filled], est[filled]
+    out[filled] = np.where(b == 1.0, e, a + b * (e - a))  # β = 1 (``speed`` None): the estimate exactly
     out[~mask] = motion.channels[~mask]
     stats.total_s = time.process_time() - t_start
     return out, stats
