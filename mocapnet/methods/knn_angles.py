@@ -49,7 +49,7 @@ from typing import Any
 import numpy as np
 
 from mocapnet.fill import runs
-from mocapnet.kinematics import inverse_kinematics, joint_positions
+from mocapnet.kinematics import inverse_kinematics, joint_positions, wrap_deg
 from mocapnet.methods.baselines import lerp_fill
 from mocapnet.methods.knn_database import SkeletonDatabase, cached_database, default_corpus
 from mocapnet.methods.knn_window import (
@@ -64,11 +64,6 @@ from mocapnet.methods.knn_window import (
 from mocapnet.methods.pca import pca_fill
 from mocapnet.methods.registry import MethodContext, register
 from mocapnet.motion import Motion, Skeleton
-
-
-def wrap(deg: np.ndarray) -> np.ndarray:
-    """Angles wrapped to [-180, 180) degrees."""
-    return (deg + 180.0) % 360.0 - 180.0
 
 
 def point_parents(skeleton: Skeleton) -> np.ndarray:
@@ -235,7 +230,7 @@ def fill_angles(
         )
         lo = nb.span[0]
         for u, c in enumerate(cols):
-            near = base[nb.span, c][:, None] + wrap(traj[:, :, u] - base[nb.span, c][:, None])  # [S, k] degrees
+            near = base[nb.span, c][:, None] + wrap_deg(traj[:, :, u] - base[nb.span, c][:, None])  # [S, k] degrees
             for c0, c1 in runs(mask[lo : nb.span[-1] + 1, c]):
                 t, e, bt = estimate_run(
                     base[:, c], near, nb.kernel, seconds[:, c], lo, (c0 + lo, c1 + lo), rms, settings

@@ -13,7 +13,7 @@ from mocapnet.corpus import PACKAGE_DATA, list_bvh
 from mocapnet.corrupt import corrupt_markers, corrupt_motion, motion_markers
 from mocapnet.io.bvh import read_bvh, write_bvh
 from mocapnet.io.c3d import read_c3d
-from mocapnet.kinematics import joint_positions
+from mocapnet.kinematics import joint_positions, wrap_deg
 from mocapnet.methods import MethodContext, build_method
 from mocapnet.methods.baselines import lerp_fill
 from mocapnet.methods.knn import (
@@ -38,7 +38,6 @@ from mocapnet.methods.knn_angles import (
     limb_rms,
     pca_angles,
     points_visible,
-    wrap,
 )
 from mocapnet.methods.knn_database import SkeletonDatabase, cached_database, default_corpus
 from mocapnet.methods.knn_window import Searcher, WindowSettings, estimate_run
@@ -305,7 +304,7 @@ def _segment_gap(motion: Motion, corruption: str, seed: int = 0) -> tuple[Motion
 
 
 def _gap_rms(out: np.ndarray, truth: np.ndarray, mask: np.ndarray) -> float:
-    return float(np.sqrt(np.mean(wrap(out[mask] - truth[mask]) ** 2)))
+    return float(np.sqrt(np.mean(wrap_deg(out[mask] - truth[mask]) ** 2)))
 
 
 @pytest.mark.parametrize("corruption", ["segment-gap:left-arm:1", "segment-gap:legs:1"])
@@ -508,7 +507,7 @@ def test_twist_from_knn_changes_the_fallback_angles_not_its_positions(parts) -> 
     twisted, _ = fill_angles(noisy, mask, db, WindowSettings(**settings, twist="knn"))
     scored = mask & truth.skeleton.scored_mask[None]
     assert np.allclose(twisted[scored], _fallback(noisy, mask, knn_only)[scored], atol=1e-6)
-    assert np.abs(wrap(twisted - plain))[scored].max() > 1.0  # the twist differs
+    assert np.abs(wrap_deg(twisted - plain))[scored].max() > 1.0  # the twist differs
     pos = [joint_positions(noisy.with_channels(c), end_sites=True) for c in (plain, twisted)]
     assert np.abs(pos[0] - pos[1]).max() < 1e-6
 
