@@ -57,12 +57,19 @@ def lerp_fill(channels: np.ndarray, mask: np.ndarray) -> np.ndarray:
     return out
 
 
-def gap_fill(channels: np.ndarray, mask: np.ndarray, spline_max: float) -> np.ndarray:
+def gap_fill(
+    channels: np.ndarray,
+    mask: np.ndarray,
+    spline_max: float,
+    interpolated: tuple[np.ndarray, np.ndarray] | None = None,
+) -> np.ndarray:
     """Interpolation of the masked samples of ``channels [T, C]`` chosen per gap: each run of missing samples
     of a column that is at most ``spline_max`` frames long takes ``spline_fill``'s value, longer runs (and every
-    run when ``spline_max < 1``) take ``lerp_fill``'s. The starting point of EBD's fill (``mocapnet.nn.ebd``):
-    short gaps are best bridged by a cubic, long ones by a line."""
-    out = lerp_fill(channels, mask)
+    run when ``spline_max < 1``) take ``lerp_fill``'s. The starting point of EBD's fill and of its blend
+    (``mocapnet.nn.ebd``): short gaps are best bridged by a cubic, long ones by a line. ``interpolated``:
+    ``(lerp_fill, spline_fill)`` of ``channels`` when the caller has them, else computed here (the spline only
+    on columns with a short gap)."""
+    out = lerp_fill(channels, mask) if interpolated is None else np.array(interpolated[0], dtype=np.float64)
     if spline_max < 1:
         return out
     short = np.zeros(mask.shape, dtype=bool)
@@ -72,7 +79,7 @@ def gap_fill(channels: np.ndarray, mask: np.ndarray, spline_max: float) -> np.nd
                 short[a:b, cols] = True
     cols = np.flatnonzero(short.any(axis=0))
     if cols.size:
-        spline = spline_fill(channels[:, cols], mask[:, cols])
+        spline = spline_fill(channels[:, cols], mask[:, cols]) if interpolated is None else interpolated[1][:, cols]
         out[:, cols] = np.where(short[:, cols], spline, out[:, cols])
     return out
 

@@ -19,3 +19,4 @@ def test_gap_fill_takes_the_spline_on_short_gaps_and_the_line_on_long_ones():
     np.testing.assert_array_equal(out[~mask], x[~mask])  # observed samples untouched
     assert np.abs(out[20:24, 0] - x[20:24, 0]).max() < np.abs(lerp[20:24, 0] - x[20:24, 0]).max()
     np.testing.assert_array_equal(gap_fill(noisy, mask, spline_max=0), lerp)
+    np.testing.assert_array_equal(gap_fill(noisy, mask, 15, interpolated=(lerp, spline)), out)  # given, not recomputed

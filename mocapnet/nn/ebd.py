@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from mocapnet.fill import gap_fill, lerp_fill, mask_groups, runs, spline_fill
+from mocapnet.fill import gap_fill, mask_groups, runs
 from mocapnet.kinematics import wrap_near
 from mocapnet.nn.base import CleanerModule
 from mocapnet.nn.layers import BLSTM, mlp, tapered
@@ -187,18 +187,14 @@ def blend_gaps(
     out = np.where(mask, np.nan, channels).astype(np.float64)
     spline_max = blend.spline_max_s * fps
     gaps = [(cols, a, b) for cols in mask_groups(mask).values() for a, b in runs(mask[:, cols[0]])]
-    if interpolated is None:
-        short = any(b - a <= spline_max for _, a, b in gaps)
-        lerp = lerp_fill(out, mask)
-        interpolated = lerp, spline_fill(out, mask) if short else lerp
-    lerp, spline = interpolated
+    bases = gap_fill(out, mask, spline_max, interpolated)
     check = bool(np.isfinite(blend.speed_factor))
     speed = channel_speed(out, mask, blend.speed_quantile) * blend.speed_factor if check else None
     lo, hi, taper = blend.gate_s[0] * fps, blend.gate_s[1] * fps, max(blend.taper_s * fps, 1.0)
     fallbacks = 0
     for cols, a, b in gaps:
         length = b - a
-        base = (spline if length <= spline_max else lerp)[a:b][:, cols]
+        base = bases[a:b][:, cols]
         if np.isnan(base).any():  # no observed sample in these channels: only the network has a value
             out[a:b, cols] = net[a:b, cols]
             continue
