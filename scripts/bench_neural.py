@@ -6,6 +6,8 @@
     python scripts/bench_neural.py --method ebf-free=runs/x/best.ckpt --skip-speed   # a candidate checkpoint
     python scripts/bench_neural.py --split val --corpus bandai2 --select --no-shipped \\
         --method ebf=a.ckpt --method ebf=b.ckpt --skip-bins --skip-speed       # choose among candidates (fold 1)
+    python scripts/bench_neural.py --split style:elderly --corpus bandai2 --select --no-shipped \
+        --method ebf-free=noeld.ckpt --skip-bins --skip-speed   # transfer to a style the model never saw
     python scripts/bench_neural.py --only stream      # rerun the streaming timing; keep the rest of the file
 """
 
@@ -28,7 +30,11 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--method", action="append", default=[], help="extra noise method, e.g. ebf-free=PATH")
     parser.add_argument("--no-shipped", action="store_true", help="score only --method, not the shipped variants")
     parser.add_argument(
-        "--split", choices=bench.SPLITS, default="test", help="fold-0 test clips, or fold-1 (val) for selection"
+        "--split",
+        type=bench.check_split,
+        default="test",
+        help="fold-0 test clips (test), fold-1 clips for selection (val), or every clip of one style "
+        "(style:NAME, for models trained with data.holdout_style=NAME)",
     )
     parser.add_argument(
         "--select", action="store_true", help=f"selection score: mean ratio over {', '.join(bench.SELECTION)}"
@@ -46,8 +52,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--timing-repeats", type=int, default=5)
     parser.add_argument("--out", default=os.path.join("benchmarks", "results", "neural"), help="path without suffix")
     args = parser.parse_args(argv)
-    if args.split == "val" and "bandai1" in (args.corpus or ["bandai1"]):
-        parser.error("bandai1 is test only (never select on it): give --corpus bandai2 with --split val")
+    if args.split != "test" and "bandai1" in (args.corpus or ["bandai1"]):
+        parser.error("bandai1 is test only (never select on it): give --corpus bandai2 with --split val or style:NAME")
     return args
 
 

@@ -41,6 +41,16 @@ CORRUPTIONS = [c for c in ANGLE_CORRUPTIONS if c != "none"] + ["segment-gap:left
 #: The corruptions and rule that choose the shipped ``ebf`` among candidates (fold 1 only): mean ratio.
 SELECTION = ("angular-0.1", "angular-0.5", "angular-0.9", "spatial-0.5cm", "uniform-0.5", "bias-sine")
 SPLITS = ("test", "val")
+#: Prefix of the unseen-style split (``"style:elderly"``): every clip of one style, for models trained with
+#: ``data.holdout_style`` set to it (a transfer check inside bandai2; bandai1 stays the test).
+STYLE_SPLIT = "style:"
+
+
+def check_split(split: str) -> str:
+    """``split`` if it is ``"test"``, ``"val"`` or ``"style:NAME"``, else ``ValueError``."""
+    if split in SPLITS or (split.startswith(STYLE_SPLIT) and len(split) > len(STYLE_SPLIT)):
+        return split
+    raise ValueError(f"split must be one of {SPLITS} or {STYLE_SPLIT}NAME (e.g. style:elderly), got {split!r}")
 
 
 def shipped_variants(motion: Motion) -> list[str]:
@@ -66,11 +76,16 @@ def neural_methods(corruption: str, motion: Motion, extra: Sequence[str], shippe
 
 
 def split_clips(name: str, split: str, n_clips: int | None):
-    """``(corpus, scored clips, training clips)``: fold-0 test clips (``"test"``) or the fold-1 validation
-    clips (``"val"``, bandai2-style corpora only), ``n_clips`` of them (``subset``)."""
-    if split not in SPLITS:
-        raise ValueError(f"split must be one of {SPLITS}, got {split!r}")
+    """``(corpus, scored clips, training clips)``: fold-0 test clips (``"test"``), the fold-1 validation
+    clips (``"val"``, bandai2-style corpora only), or every clip of one style (``"style:NAME"``, with the
+    training clips of fold 0 without that style, which ``gaussian-tuned`` is tuned on); ``n_clips`` of them
+    (``subset``)."""
+    check_split(split)
     corpus = load_corpus(name, progress=False)
+    if split.startswith(STYLE_SPLIT):
+        style = split[len(STYLE_SPLIT) :]
+        train, _, _ = corpus.split(0, holdout_style=style)
+        return corpus, gap_bins_module.subset(corpus.style_clips(style), n_clips), train
     train, val, test = corpus.split(0)
     return corpus, gap_bins_module.subset(test if split == "test" else val, n_clips), train
 

@@ -45,6 +45,12 @@ def test_bandai1_cannot_be_a_selection_split():
     assert module.parse_args(["--split", "val", "--corpus", "bandai2"]).split == "val"
     with pytest.raises(ValueError, match="split"):
         bench.split_clips("bandai2", "train", 3)
+    for argv in (["--split", "style:elderly"], ["--split", "style:elderly", "--corpus", "bandai1"]):
+        with pytest.raises(SystemExit):
+            module.parse_args(argv)
+    assert module.parse_args(["--split", "style:elderly", "--corpus", "bandai2"]).split == "style:elderly"
+    with pytest.raises(ValueError, match="style:NAME"):
+        bench.check_split("style:")
 
 
 def test_only_stream_keeps_the_other_parts(tmp_path, monkeypatch):
@@ -65,3 +71,18 @@ def test_only_stream_keeps_the_other_parts(tmp_path, monkeypatch):
     assert "--only stream" in got["streaming_run"]["command"]
     text = (tmp_path / "neural.md").read_text()
     assert "| ebf | onnx | 2,000 | 0.400 | 0.900 | 0.500 | 2.000 |" in text
+
+
+def test_style_split_scores_only_that_style_and_tunes_without_it(monkeypatch):
+    """``style:NAME`` scores clips of that style only; the training clips (for gaussian-tuned) hold none."""
+    from mocapnet.corpus import Corpus
+    from mocapnet.evaluate.bvh_bench import synthetic
+
+    base = synthetic(4, chain=True)
+    names = [f"dataset-2_walk_{s}_{i:03d}" for s in ("elderly", "active", "normal") for i in range(10)]
+    motions = [type(base)(base.skeleton, base.channels, base.fps, n) for n in names]
+    corpus = Corpus("fake", Path("."), motions, {n: i % 5 for i, n in enumerate(names)})
+    monkeypatch.setattr(bench, "load_corpus", lambda name, progress: corpus)
+    _, clips, train = bench.split_clips("fake", "style:elderly", 4)
+    assert len(clips) == 4 and all("_elderly_" in m.name for m in clips)
+    assert train and not any("_elderly_" in m.name for m in train)
