@@ -9,6 +9,8 @@ copies the training-set normaliser into the model, and fits with a Lightning ``T
 ``cfg.trainer``, TensorBoard logging from ``cfg.logger`` and two checkpoints under ``<run_dir>/checkpoints``:
 ``best.ckpt`` (lowest validation error; model selection uses validation only) and ``last.ckpt``
 (``ckpt_path=last`` resumes a killed run from it, optimizer, scheduler, data stream and time budget included).
+With ``ema_decay`` set, an exponential moving average of the weights (Lightning's ``EMAWeightAveraging``) is
+what validation scores and what both checkpoints hold as ``state_dict``.
 """
 
 from __future__ import annotations
@@ -23,7 +25,7 @@ import torch
 from hydra import compose, initialize_config_dir
 from hydra.core.hydra_config import HydraConfig
 from hydra.errors import HydraException
-from lightning.pytorch.callbacks import LearningRateMonitor, ModelCheckpoint
+from lightning.pytorch.callbacks import EMAWeightAveraging, LearningRateMonitor, ModelCheckpoint
 from omegaconf import DictConfig, OmegaConf, open_dict
 from omegaconf.errors import OmegaConfBaseException
 
@@ -111,9 +113,19 @@ def build(cfg: DictConfig) -> tuple[MotionDataModule, CleanerModule]:
     return data, model
 
 
+def weight_averaging(ema_decay: float | None) -> list[EMAWeightAveraging]:
+    """The weight-averaging callback for ``ema_decay`` (none for ``None``), else ValueError."""
+    if ema_decay is None:
+        return []
+    if not 0.0 < float(ema_decay) < 1.0:
+        raise ValueError(f"training config: ema_decay must be in (0, 1) or null, got {ema_decay!r}")
+    return [EMAWeightAveraging(decay=float(ema_decay))]
+
+
 def train(cfg: DictConfig) -> Path:
     """Fit the configured model; return the path of the best checkpoint (or the last one when validation
     never ran). Writes ``<run_dir>/config.yaml`` and ``<run_dir>/result.json`` (best score, paths)."""
+    averaging = weight_averaging(cfg.get("ema_decay"))
     configure_torch(cfg.get("threads"))
     L.seed_everything(cfg.seed, workers=True)
     run_dir = Path(cfg.run_dir)
@@ -125,6 +137,7 @@ def train(cfg: DictConfig) -> Path:
         dirpath=ckpt_dir, filename="best", monitor=model.val_metric, mode="min", save_last=True, save_top_k=1
     )
     callbacks = [best, LearningRateMonitor()] if cfg.get("logger") else [best]
+    callbacks += averaging
     logger = hydra.utils.instantiate(cfg.logger, save_dir=str(run_dir)) if cfg.get("logger") else False
     trainer = L.Trainer(**OmegaConf.to_container(cfg.trainer, resolve=True), callbacks=callbacks, logger=logger)
     ckpt_path = resume_path(cfg.get("ckpt_path"), ckpt_dir)

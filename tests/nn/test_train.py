@@ -152,3 +152,23 @@ def test_data_and_model_must_agree_on_the_gap_interpolation():
     cfg = compose_config(["experiment=sample_quick", "model=ebd", "+data.spline_max_s=0.5"])
     with pytest.raises(ValueError, match="spline_max_s"):
         build(cfg)
+
+
+def test_ema_checkpoints_hold_the_averaged_weights_and_resume(tmp_path):
+    """With ``ema_decay`` the checkpoint's state_dict is the average (not the raw weights, kept beside it for
+    resuming); a resumed run continues the average; a bad decay is refused before anything is written."""
+    base = [f"runs_root={tmp_path}", "name=ema", "ema_decay=0.5"] + QUICK + TINY_MODEL["ebf"]
+    train(compose_cfg(base + ["trainer.max_epochs=1"]))
+    first = read_checkpoint(tmp_path / "ema" / "checkpoints" / "last.ckpt")
+    raw, averaged = first["current_model_state"], first["state_dict"]
+    assert raw.keys() == averaged.keys()
+    weights = [k for k in raw if raw[k].is_floating_point() and "encoder" in k]
+    assert weights and any(not torch.equal(raw[k], averaged[k]) for k in weights)
+    train(compose_cfg(base + ["trainer.max_epochs=2"]))
+    resumed = read_checkpoint(tmp_path / "ema" / "checkpoints" / "last.ckpt")
+    assert resumed["global_step"] == 4 and int(resumed["averaging_state"]["n_averaged"]) == 4
+    model = EBF.load_from_checkpoint(tmp_path / "ema" / "checkpoints" / "last.ckpt", weights_only=True)
+    torch.testing.assert_close(model.state_dict()[weights[0]], resumed["state_dict"][weights[0]])
+    with pytest.raises(ValueError, match="ema_decay"):
+        train(compose_cfg([f"runs_root={tmp_path}", "name=bad", "ema_decay=1.5"] + QUICK))
+    assert not (tmp_path / "bad").exists()
