@@ -109,12 +109,22 @@ STILL_VARIANTS: tuple[dict, ...] = (
     {"still_gate": 2.0},
     {"twist": "blend", "still_gate": 1.0},
 )
+# Fourth session, round E (``--tune --grid fallback``): the PCA fallback keeps the reference's angles of short
+# end chains (``short_chain``) and, in gated gaps, the blend's twist (``gated_twist``).
+FALLBACK_VARIANTS: tuple[dict, ...] = (
+    {},
+    {"short_chain": 15.0},
+    {"twist": "blend", "short_chain": 15.0},
+    {"twist": "blend", "gated_twist": True, "short_chain": 15.0, "still_gate": 1.0},
+    {"twist": "blend", "gated_twist": True, "short_chain": 15.0, "still_gate": 2.0},
+)
 GRIDS = {
     "main": TUNE_VARIANTS,
     "plateau": PLATEAU_VARIANTS,
     "twist": TWIST_VARIANTS,
     "gate": GATE_VARIANTS,
     "still": STILL_VARIANTS,
+    "fallback": FALLBACK_VARIANTS,
 }
 
 

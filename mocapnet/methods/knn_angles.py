@@ -31,10 +31,15 @@ For every *gap* (maximal run of frames in which some scored channel is missing):
    observed frames, where the neighbours disagree, or where nothing in the database moves the limb alike
    (motion the database lacks); the database where they agree. Positions cannot fix a joint's twist about
    a bone with one child; the IK keeps the twist of its reference (``twist``): linear interpolation, the kNN
-   estimate, or their blend with weight β (``blend``; gated gaps: interpolation). With ``limb_gate``, a gap
-   whose limb distance exceeds it gets β = 0 (f alone); with ``still_gate``, one whose limb distance exceeds
-   that many times the limb's own motion in the margins (``limb_motion``). With the truth in the database
-   σ = 0 and the fill is exact.
+   estimate, or their blend with weight β (``blend``), and all the angles of an end joint whose End Site
+   coincides with it (Bandai's head, hands and toes). With ``limb_gate``, a gap whose
+   limb distance exceeds it gets β = 0 (f alone); with ``still_gate``, one whose limb distance exceeds that
+   many times the limb's own motion in the margins (``limb_motion``). A gated gap's reference is
+   interpolation, or with ``gated_twist`` still ``twist``'s (``blend``: with the β it would have had), so that
+   the gate changes only what positions determine: f's joint positions are PCA's either way. With
+   ``short_chain`` (cm), a joint whose subtree lies that close to it (Bandai's feet) takes its angles and its
+   subtree's from the reference instead (``short_chains``): positions a few cm apart set angles poorly. With
+   the truth in the database σ = 0 and the fill is exact.
 
 Observed samples and unscored channels are never changed; missing unscored channels are interpolated.
 """
@@ -119,17 +124,35 @@ ANGLE_DEFAULTS: dict[str, Any] = {
 }
 
 
-def pca_angles(motion: Motion, mask: np.ndarray, base: np.ndarray, visible: np.ndarray) -> np.ndarray:
+def short_chains(skeleton: Skeleton, max_cm: float) -> np.ndarray:
+    """``[C]``: the channels of the joints whose whole subtree (descendant joints and End Sites) lies within
+    ``max_cm`` of them, measured along the bones of the rest offsets (Bandai: the feet and toes at 12 cm)."""
+    parents = point_parents(skeleton)
+    lengths = np.linalg.norm(np.concatenate([skeleton.offsets, skeleton.end_sites]), axis=1) * skeleton.cm_per_unit
+    reach = np.zeros(len(parents))  # longest path (cm) from each point down to a point of its subtree
+    for i in range(len(parents) - 1, 0, -1):  # children after their parents: joints in order, End Sites last
+        reach[parents[i]] = max(reach[parents[i]], reach[i] + lengths[i])
+    out = np.zeros(skeleton.n_channels, dtype=bool)
+    for j in np.flatnonzero(reach[: skeleton.n_joints] <= max_cm):
+        out[skeleton.joint_channels(j)] = True
+    return out
+
+
+def pca_angles(
+    motion: Motion, mask: np.ndarray, base: np.ndarray, visible: np.ndarray, keep: np.ndarray | None = None
+) -> np.ndarray:
     """``base [T, C]`` (degrees) with the masked samples replaced by the Gløersen & Federolf PCA fill of the
     joint and End Site positions (``visible [T, P]``), taken back to angles by ``inverse_kinematics`` (twist
-    from ``base``); points PCA cannot rebuild keep ``base``'s positions."""
+    from ``base``); points PCA cannot rebuild keep ``base``'s positions, and channels ``keep [C]`` (whole
+    subtrees, ``short_chains``) keep ``base``'s angles."""
     ref = motion.with_channels(base)
     pos = joint_positions(ref, end_sites=True)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
         filled = pca_fill(np.where(visible[..., None], pos, np.nan), visible)
     out = base.copy()
-    out[mask] = inverse_kinematics(ref, np.where(np.isfinite(filled), filled, pos))[mask]
+    change = mask if keep is None else mask & ~keep[None]
+    out[change] = inverse_kinematics(ref, np.where(np.isfinite(filled), filled, pos))[change]
     return out
 
 
@@ -236,10 +259,11 @@ def fill_angles(
                     base[:, c], near, nb.kernel, seconds[:, c], lo, (c0 + lo, c1 + lo), rms, settings
                 )
                 est[t, c], beta[t, c], filled[t, c] = e, 0.0 if gated else bt, True
-                if not gated and settings.twist != "lerp":
+                if settings.twist != "lerp" and (settings.gated_twist or not gated):
                     twist[t, c] = e if settings.twist == "knn" else base[t, c] + bt * (e - base[t, c])
     if settings.fallback == "pca":
-        anchor = pca_angles(motion, mask, twist, visible)
+        keep = None if settings.short_chain is None else short_chains(sk, settings.short_chain)
+        anchor = pca_angles(motion, mask, twist, visible, keep)
     else:
         anchor = base
     a, b, e = anchor[filled], beta[filled], est[filled]
@@ -269,7 +293,7 @@ def angle_filler(
     help="kNN in joint space from a large clean database (default: the largest corpus of the skeleton, cached), "
     "offset-corrected and blended with the clip's PCA fill; options k, margin_s, near_gain, speed, offset, "
     "query_hz, distance_gain, own, fallback, max_weight, limb_distance, plateau_s, twist, limb_gate, still_gate, "
-    "database",
+    "gated_twist, short_chain, database",
 )
 def _knn_angles(
     context: MethodContext, database: str | None = None, **options: Any

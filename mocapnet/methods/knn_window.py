@@ -151,7 +151,13 @@ class WindowSettings:
     ``limb_gate`` (cm, joint space): a gap whose neighbours' limb distance exceeds this takes
     the fallback only (None: never); ``still_gate`` (joint space): the same where the limb distance exceeds
     this many times the limb's own motion in the window's margins (``knn_angles.limb_motion``; a limb that
-    hardly moves is left to the fallback unless the neighbours match it that closely)."""
+    hardly moves is left to the fallback unless the neighbours match it that closely); ``gated_twist``
+    (joint space): a gated gap's fallback still takes its twist (and the angles of end joints whose End Site
+    coincides with them, which positions do not set either) from ``twist``'s reference (``blend``: with the
+    weight β the gap would have had ungated) instead of from interpolation: the gate then swaps only what
+    positions determine to PCA; ``short_chain`` (cm, joint space): in the PCA fallback, a joint whose
+    subtree lies within this of it keeps the reference's angles for itself and its subtree
+    (``knn_angles.short_chains``; None: never)."""
 
     k: int = 16
     margin_s: float = 0.3
@@ -168,14 +174,17 @@ class WindowSettings:
     twist: str = "lerp"
     limb_gate: float | None = None
     still_gate: float | None = None
+    gated_twist: bool = False
+    short_chain: float | None = None
 
     def __post_init__(self) -> None:
-        positive = all(v is None or v > 0 for v in (self.plateau_s, self.limb_gate, self.still_gate))
+        gates = (self.plateau_s, self.limb_gate, self.still_gate, self.short_chain)
+        positive = all(v is None or v > 0 for v in gates)
         choices = self.fallback in ("lerp", "pca") and self.twist in ("lerp", "knn", "blend")
         if self.k < 1 or not 0.0 <= self.max_weight <= 1.0 or not choices or not positive:
             raise ValueError(
                 "knn: k must be >= 1, max_weight in [0, 1], fallback lerp or pca, twist lerp, knn or blend, "
-                f"plateau_s, limb_gate and still_gate > 0; got {self}"
+                f"plateau_s, limb_gate, still_gate and short_chain > 0; got {self}"
             )
 
 

@@ -13,7 +13,7 @@ from mocapnet.corpus import PACKAGE_DATA, list_bvh
 from mocapnet.corrupt import corrupt_markers, corrupt_motion, motion_markers
 from mocapnet.io.bvh import read_bvh, write_bvh
 from mocapnet.io.c3d import read_c3d
-from mocapnet.kinematics import joint_positions, wrap_deg
+from mocapnet.kinematics import geodesic_deg, joint_positions, local_rotations, wrap_deg
 from mocapnet.methods import MethodContext, build_method
 from mocapnet.methods.baselines import lerp_fill
 from mocapnet.methods.knn import (
@@ -37,7 +37,9 @@ from mocapnet.methods.knn_angles import (
     limb_motion,
     limb_rms,
     pca_angles,
+    point_parents,
     points_visible,
+    short_chains,
 )
 from mocapnet.methods.knn_database import SkeletonDatabase, cached_database, default_corpus
 from mocapnet.methods.knn_window import Searcher, WindowSettings, estimate_run
@@ -435,6 +437,7 @@ def test_max_weight_caps_the_knn_share_and_bad_settings_are_refused() -> None:
         {"plateau_s": 0.0},
         {"limb_gate": -1.0},
         {"twist": "x"},
+        {"short_chain": 0.0},
     )
     for bad in bad_settings:
         with pytest.raises(ValueError, match="knn: k must be"):
@@ -490,9 +493,10 @@ def test_limb_gates_fall_back_to_pca_and_keep_the_truth(parts) -> None:
     db = SkeletonDatabase.from_motions([parts[0], truth.with_channels(truth.channels), parts[2]])
     db.names = ("part0", "copy of the truth", "part1800")
     for twist in ("lerp", "knn", "blend"):
-        settings = WindowSettings(**{**ANGLE_DEFAULTS, "limb_gate": 1.0, "still_gate": 1.0, "twist": twist})
-        out, _ = fill_angles(noisy, mask, db, settings)
-        assert _gap_rms(out, truth.channels, mask) < 1e-3
+        for gated_twist in (False, True):
+            gates = {"limb_gate": 1.0, "still_gate": 1.0, "twist": twist, "gated_twist": gated_twist}
+            out, _ = fill_angles(noisy, mask, db, WindowSettings(**{**ANGLE_DEFAULTS, **gates}))
+            assert _gap_rms(out, truth.channels, mask) < 1e-3
 
 
 def test_twist_from_knn_changes_the_fallback_angles_not_its_positions(parts) -> None:
@@ -521,3 +525,73 @@ def test_limb_motion_is_the_limbs_own_rms_about_its_mean_where_observed() -> Non
     assert np.isclose(limb_motion(feats, np.arange(10), w, (4, 6)), 2.0)
     w[:, 2] = 0.0
     assert np.isnan(limb_motion(feats, np.arange(10), w, (4, 6)))
+
+
+def test_gated_twist_keeps_the_pca_positions_and_takes_the_better_angles(parts) -> None:
+    """A gated gap with ``gated_twist`` is the PCA fallback whose IK takes its twist and the angles positions do
+    not set from the kNN estimate: the same joint and End Site positions as the gate's plain fallback (which
+    takes them from interpolation), other angles, and closer to the truth on the joints whose rotation the IK
+    takes whole from its reference; observed samples stay as they were. The database holds the truth with the
+    left arm's angles offset by 0.5°: the limb distance is above the gate, and the offset-corrected estimate
+    is nearly the truth."""
+    truth = parts[1]
+    noisy, mask = _segment_gap(truth, "segment-gap:left-arm:1", seed=4)
+    sk = truth.skeleton
+    shifted = truth.channels.copy()
+    shifted[:, np.flatnonzero(mask.any(axis=0))] += 0.5
+    db = SkeletonDatabase.from_motions([parts[0], truth.with_channels(shifted), parts[2]])
+    db.names = ("part0", "the truth, offset", "part1800")
+    knn_only, _ = fill_angles(noisy, mask, db, WindowSettings(**{**ANGLE_DEFAULTS, "speed": None}))
+    gate = {**ANGLE_DEFAULTS, "limb_gate": 1e-6, "twist": "knn"}
+    plain, stats = fill_angles(noisy, mask, db, WindowSettings(**gate))
+    kept, _ = fill_angles(noisy, mask, db, WindowSettings(**gate, gated_twist=True))
+    assert min(stats.limb_distance) > 1e-6  # the gap is gated
+    scored = mask & sk.scored_mask[None]
+    lerp = lerp_fill(noisy.channels, mask)
+    assert np.allclose(plain[scored], _fallback(noisy, mask, lerp)[scored], atol=1e-9)
+    assert np.allclose(kept[scored], _fallback(noisy, mask, knn_only)[scored], atol=1e-6)
+    assert np.array_equal(kept[~mask], noisy.channels[~mask])
+    assert np.abs(wrap_deg(kept - plain))[scored].max() > 1.0  # the option changes the angles
+    pos = [joint_positions(noisy.with_channels(c), end_sites=True) for c in (plain, kept)]
+    assert np.abs(pos[0] - pos[1]).max() < 1e-6  # cm: the positions stay PCA's
+    rows = mask.any(axis=1)
+    rot = {k: local_rotations(sk, c)[rows] for k, c in (("truth", truth.channels), ("lerp", lerp), ("plain", plain),
+                                                          ("kept", kept))}  # fmt: skip
+    whole = [j for j in sk.scored_joints if mask[:, sk.joint_channels(j)].any()
+             and geodesic_deg(rot["plain"][:, j], rot["lerp"][:, j]).max() < 1e-6]  # fmt: skip
+    assert whole  # the IK takes some joint whole from its reference
+    for j in whole:
+        err = {k: geodesic_deg(rot[k][:, j], rot["truth"][:, j]).mean() for k in ("plain", "kept")}
+        assert err["kept"] < 0.5 * err["plain"], (sk.names[j], err)
+
+
+def test_short_chains_take_the_reference_angles_and_leave_the_other_positions(parts) -> None:
+    """``short_chain``: in the PCA fallback, joints whose subtree lies within that many cm (CMU at 15 cm: the
+    hands and fingers, the toes) keep their reference's angles, here the nearly true kNN estimate of a gated
+    gap (``gated_twist``); every other joint and End Site stays where the plain fallback puts it. Without it
+    the fingers' angles come from PCA's positions a few cm apart, far off; with it the gap is much closer to
+    the truth."""
+    truth = parts[1]
+    sk = truth.skeleton
+    chains = short_chains(sk, 15.0)
+    kept_joints = {sk.names[j] for j in range(sk.n_joints) if chains[sk.joint_channels(j)].all()}
+    assert {"LeftHand", "LFingers", "LThumb", "LeftToeBase"} <= kept_joints and "LeftForeArm" not in kept_joints
+    for j in range(1, sk.n_joints):  # whole subtrees: a kept joint's children are kept
+        assert not chains[sk.joint_channels(sk.parents[j])].any() or chains[sk.joint_channels(j)].all()
+    noisy, mask = _segment_gap(truth, "segment-gap:left-arm:1", seed=4)
+    shifted = truth.channels.copy()
+    shifted[:, np.flatnonzero(mask.any(axis=0))] += 0.5
+    db = SkeletonDatabase.from_motions([parts[0], truth.with_channels(shifted), parts[2]])
+    db.names = ("part0", "the truth, offset", "part1800")
+    knn_only, _ = fill_angles(noisy, mask, db, WindowSettings(**{**ANGLE_DEFAULTS, "speed": None}))
+    gate = {**ANGLE_DEFAULTS, "limb_gate": 1e-6, "twist": "knn", "gated_twist": True}
+    plain, _ = fill_angles(noisy, mask, db, WindowSettings(**gate))
+    short, _ = fill_angles(noisy, mask, db, WindowSettings(**gate, short_chain=15.0))
+    in_chain = mask & chains[None]
+    assert in_chain.any() and np.array_equal(short[in_chain], knn_only[in_chain])
+    assert np.array_equal(short[mask & ~chains[None]], plain[mask & ~chains[None]])
+    assert np.array_equal(short[~mask], noisy.channels[~mask])
+    pos = [joint_positions(noisy.with_channels(c), end_sites=True) for c in (plain, short)]
+    still = [i for i, p in enumerate(point_parents(sk)) if p < 0 or not chains[sk.joint_channels(p)].any()]
+    assert np.abs(pos[0][:, still] - pos[1][:, still]).max() < 1e-6  # only points hanging from kept joints move
+    assert _gap_rms(short, truth.channels, mask) < 0.75 * _gap_rms(plain, truth.channels, mask)
