@@ -114,13 +114,18 @@ def hop_distances(skeleton: Skeleton, joints: Iterable[int]) -> np.ndarray:
 
 # Joint-space defaults that differ from ``WindowSettings``'s, chosen on bandai2 fold-1 clips with and
 # without their content label in the database (the second mimics motion the database lacks), by the rule
-# of ``mocapnet.evaluate.knn_bench.tune_scores`` (benchmarks/results/knn_tuning.md, knn_tuning_plateau.md).
+# of ``mocapnet.evaluate.knn_bench.tune_scores`` (benchmarks/results/knn_tuning.md, knn_tuning_plateau.md,
+# knn_tuning_fallback.md for the last four).
 ANGLE_DEFAULTS: dict[str, Any] = {
     "fallback": "pca",
     "distance_gain": 6.0,
     "limb_distance": True,
     "speed": 120.0,
     "plateau_s": 0.5,
+    "twist": "blend",
+    "gated_twist": True,
+    "short_chain": 15.0,
+    "still_gate": 2.0,
 }
 
 

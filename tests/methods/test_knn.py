@@ -472,6 +472,11 @@ def test_limb_distance_measures_the_missing_points_where_they_are_observed() -> 
     assert np.isnan(limb_rms(stored, feats, *args, w, np.array([1.0]), (4, 6)))
 
 
+# The defaults without the fallback options of round E (knn_tuning_fallback.md), so that the tests below see each
+# option alone.
+_PLAIN = {**ANGLE_DEFAULTS, "twist": "lerp", "gated_twist": False, "short_chain": None, "still_gate": None}
+
+
 def _fallback(noisy: Motion, mask: np.ndarray, twist: np.ndarray) -> np.ndarray:
     """The PCA fallback of ``fill_angles`` with its IK's twist taken from ``twist [T, C]``."""
     sk = noisy.skeleton
@@ -487,7 +492,7 @@ def test_limb_gates_fall_back_to_pca_and_keep_the_truth(parts) -> None:
     other = SkeletonDatabase.from_motions([parts[0], parts[2]])
     scored = mask & truth.skeleton.scored_mask[None]
     for gate in ({"limb_gate": 1e-6}, {"still_gate": 1e-9}):
-        gated, stats = fill_angles(noisy, mask, other, WindowSettings(**{**ANGLE_DEFAULTS, **gate}))
+        gated, stats = fill_angles(noisy, mask, other, WindowSettings(**{**_PLAIN, **gate}))
         assert min(stats.limb_distance) > 1e-6
         assert np.allclose(gated[scored], _fallback(noisy, mask, lerp_fill(noisy.channels, mask))[scored], atol=1e-9)
     db = SkeletonDatabase.from_motions([parts[0], truth.with_channels(truth.channels), parts[2]])
@@ -505,10 +510,10 @@ def test_twist_from_knn_changes_the_fallback_angles_not_its_positions(parts) -> 
     truth = parts[1]
     noisy, mask = _segment_gap(truth, "segment-gap:left-arm:1", seed=4)
     db = SkeletonDatabase.from_motions([parts[0], parts[2]])
-    knn_only, _ = fill_angles(noisy, mask, db, WindowSettings(**{**ANGLE_DEFAULTS, "speed": None}))
-    settings = {**ANGLE_DEFAULTS, "speed": 1e-9}
+    knn_only, _ = fill_angles(noisy, mask, db, WindowSettings(**{**_PLAIN, "speed": None}))
+    settings = {**_PLAIN, "speed": 1e-9}
     plain, _ = fill_angles(noisy, mask, db, WindowSettings(**settings))
-    twisted, _ = fill_angles(noisy, mask, db, WindowSettings(**settings, twist="knn"))
+    twisted, _ = fill_angles(noisy, mask, db, WindowSettings(**{**settings, "twist": "knn"}))
     scored = mask & truth.skeleton.scored_mask[None]
     assert np.allclose(twisted[scored], _fallback(noisy, mask, knn_only)[scored], atol=1e-6)
     assert np.abs(wrap_deg(twisted - plain))[scored].max() > 1.0  # the twist differs
@@ -541,10 +546,10 @@ def test_gated_twist_keeps_the_pca_positions_and_takes_the_better_angles(parts) 
     shifted[:, np.flatnonzero(mask.any(axis=0))] += 0.5
     db = SkeletonDatabase.from_motions([parts[0], truth.with_channels(shifted), parts[2]])
     db.names = ("part0", "the truth, offset", "part1800")
-    knn_only, _ = fill_angles(noisy, mask, db, WindowSettings(**{**ANGLE_DEFAULTS, "speed": None}))
-    gate = {**ANGLE_DEFAULTS, "limb_gate": 1e-6, "twist": "knn"}
+    knn_only, _ = fill_angles(noisy, mask, db, WindowSettings(**{**_PLAIN, "speed": None}))
+    gate = {**_PLAIN, "limb_gate": 1e-6, "twist": "knn"}
     plain, stats = fill_angles(noisy, mask, db, WindowSettings(**gate))
-    kept, _ = fill_angles(noisy, mask, db, WindowSettings(**gate, gated_twist=True))
+    kept, _ = fill_angles(noisy, mask, db, WindowSettings(**{**gate, "gated_twist": True}))
     assert min(stats.limb_distance) > 1e-6  # the gap is gated
     scored = mask & sk.scored_mask[None]
     lerp = lerp_fill(noisy.channels, mask)
@@ -583,10 +588,10 @@ def test_short_chains_take_the_reference_angles_and_leave_the_other_positions(pa
     shifted[:, np.flatnonzero(mask.any(axis=0))] += 0.5
     db = SkeletonDatabase.from_motions([parts[0], truth.with_channels(shifted), parts[2]])
     db.names = ("part0", "the truth, offset", "part1800")
-    knn_only, _ = fill_angles(noisy, mask, db, WindowSettings(**{**ANGLE_DEFAULTS, "speed": None}))
-    gate = {**ANGLE_DEFAULTS, "limb_gate": 1e-6, "twist": "knn", "gated_twist": True}
+    knn_only, _ = fill_angles(noisy, mask, db, WindowSettings(**{**_PLAIN, "speed": None}))
+    gate = {**_PLAIN, "limb_gate": 1e-6, "twist": "knn", "gated_twist": True}
     plain, _ = fill_angles(noisy, mask, db, WindowSettings(**gate))
-    short, _ = fill_angles(noisy, mask, db, WindowSettings(**gate, short_chain=15.0))
+    short, _ = fill_angles(noisy, mask, db, WindowSettings(**{**gate, "short_chain": 15.0}))
     in_chain = mask & chains[None]
     assert in_chain.any() and np.array_equal(short[in_chain], knn_only[in_chain])
     assert np.array_equal(short[mask & ~chains[None]], plain[mask & ~chains[None]])
