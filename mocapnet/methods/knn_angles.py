@@ -37,8 +37,8 @@ For every *gap* (maximal run of frames in which some scored channel is missing):
    many times the limb's own motion in the margins (``limb_motion``). A gated gap's reference is
    interpolation, or with ``gated_twist`` still ``twist``'s (``blend``: with the β it would have had), so that
    the gate changes only what positions determine: f's joint positions are PCA's either way. With
-   ``short_chain`` (cm), a joint whose subtree lies that close to it (Bandai's feet) takes its angles and its
-   subtree's from the reference instead (``short_chains``): positions a few cm apart set angles poorly. With
+   ``short_chain`` (cm), a joint whose subtree lies that close to it (Bandai's feet) and its subtree keep the
+   reference's angles instead (``short_chains``): positions a few cm apart set angles poorly. With
    the truth in the database σ = 0 and the fill is exact.
 
 Observed samples and unscored channels are never changed; missing unscored channels are interpolated.
@@ -131,7 +131,8 @@ ANGLE_DEFAULTS: dict[str, Any] = {
 
 def short_chains(skeleton: Skeleton, max_cm: float) -> np.ndarray:
     """``[C]``: the channels of the joints whose whole subtree (descendant joints and End Sites) lies within
-    ``max_cm`` of them, measured along the bones of the rest offsets (Bandai: the feet and toes at 12 cm)."""
+    ``max_cm`` of them, measured along the bones of the rest offsets (Bandai at 15 cm: neck, head, hands, feet
+    and toes; Foot to Toes is 11.75 cm)."""
     parents = point_parents(skeleton)
     lengths = np.linalg.norm(np.concatenate([skeleton.offsets, skeleton.end_sites]), axis=1) * skeleton.cm_per_unit
     reach = np.zeros(len(parents))  # longest path (cm) from each point down to a point of its subtree
