@@ -118,6 +118,16 @@ FALLBACK_VARIANTS: tuple[dict, ...] = (
     {"twist": "blend", "gated_twist": True, "short_chain": 15.0, "still_gate": 1.0},
     {"twist": "blend", "gated_twist": True, "short_chain": 15.0, "still_gate": 2.0},
 )
+# Fifth session, round F (``--tune --grid pcagate``): the fallback alone where PCA rebuilds the limb in the margins
+# better than the neighbours match it (``pca_gate``), and the absolute limb gate again now that the gated fallback
+# keeps the blend's twist and short chains (round E).
+PCA_GATE_VARIANTS: tuple[dict, ...] = (
+    {},
+    {"pca_gate": 2.0},
+    {"pca_gate": 3.0},
+    {"limb_gate": 12.0},
+    {"pca_gate": 3.0, "limb_gate": 12.0},
+)
 GRIDS = {
     "main": TUNE_VARIANTS,
     "plateau": PLATEAU_VARIANTS,
@@ -125,6 +135,7 @@ GRIDS = {
     "gate": GATE_VARIANTS,
     "still": STILL_VARIANTS,
     "fallback": FALLBACK_VARIANTS,
+    "pcagate": PCA_GATE_VARIANTS,
 }
 
 

@@ -34,7 +34,9 @@ For every *gap* (maximal run of frames in which some scored channel is missing):
    estimate, or their blend with weight β (``blend``), and all the angles of an end joint whose End Site
    coincides with it (Bandai's head, hands and toes). With ``limb_gate``, a gap whose
    limb distance exceeds it gets β = 0 (f alone); with ``still_gate``, one whose limb distance exceeds that
-   many times the limb's own motion in the margins (``limb_motion``). A gated gap's reference is
+   many times the limb's own motion in the margins (``limb_motion``); with ``pca_gate``, one whose limb
+   distance exceeds that many times PCA's own error at rebuilding the limb in the margins, the limb hidden
+   over the whole window (``pca_margin_error``). A gated gap's reference is
    interpolation, or with ``gated_twist`` still ``twist``'s (``blend``: with the β it would have had), so that
    the gate changes only what positions determine: f's joint positions are PCA's either way. With
    ``short_chain`` (cm), a joint whose subtree lies that close to it (Bandai's feet) and its subtree keep the
@@ -205,6 +207,29 @@ def limb_motion(feats: np.ndarray, grid: np.ndarray, w: np.ndarray, gap: tuple[i
     return float(np.sqrt((((pts - mean) ** 2).sum(-1) * seen).sum() / seen.sum()))
 
 
+def pca_margin_error(
+    pos: np.ndarray, visible: np.ndarray, grid: np.ndarray, w: np.ndarray, gap: tuple[int, int]
+) -> float:
+    """How well the clip's own PCA rebuilds the limb (``limb_points``) where it is observed around ``gap``: the
+    limb is hidden over the window's grid frames ``grid [F]`` (gap and margins; weights ``w [F, P]``, 0 where
+    missing), ``pca_fill`` rebuilds it from the rest of the clip (joint and End Site positions ``pos [T, P, 3]``,
+    cm, ``visible [T, P]``), and the result is the RMS distance (cm) from the observed positions on the
+    margins' grid frames: PCA's cross-validated error, to set against the neighbours' ``limb_rms``. NaN when
+    the limb is never observed there or PCA cannot rebuild it."""
+    limb = limb_points(w, grid, gap)
+    margins = grid[(grid < gap[0]) | (grid >= gap[1])]
+    seen = visible[margins][:, limb]
+    if not seen.any():
+        return float("nan")
+    hidden = visible.copy()
+    hidden[grid[0] : grid[-1] + 1, limb] = False
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        filled = pca_fill(np.where(hidden[..., None], pos, np.nan), hidden)
+    err = np.linalg.norm(filled[margins][:, limb] - pos[margins][:, limb], axis=-1)[seen]
+    return float(np.sqrt(np.mean(err**2)))  # NaN where PCA could not rebuild a point
+
+
 def fill_angles(
     motion: Motion,
     mask: np.ndarray,
@@ -238,6 +263,7 @@ def fill_angles(
     n_t = motion.n_frames
     complete = ~smask.any(axis=1)
     own = Searcher(feats, np.zeros(n_t, dtype=int), f"{motion.name} itself") if settings.own else None
+    pos = joint_positions(motion.with_channels(base), end_sites=True) if settings.pca_gate is not None else None
     est, beta = base.copy(), np.zeros(mask.shape)  # kNN estimate and its blend weight, per sample
     twist = base.copy()  # where the PCA fallback's IK takes its twist from
     filled = np.zeros(mask.shape, dtype=bool)  # the scored missing samples the blend writes
@@ -255,6 +281,10 @@ def fill_angles(
             or (
                 settings.still_gate is not None
                 and limb > settings.still_gate * limb_motion(feats, nb.grid, nb.weights, (a, b))
+            )
+            or (
+                pos is not None
+                and limb > settings.pca_gate * pca_margin_error(pos, visible, nb.grid, nb.weights, (a, b))
             )
         )
         lo = nb.span[0]
@@ -299,7 +329,7 @@ def angle_filler(
     help="kNN in joint space from a large clean database (default: the largest corpus of the skeleton, cached), "
     "offset-corrected and blended with the clip's PCA fill; options k, margin_s, near_gain, speed, offset, "
     "query_hz, distance_gain, own, fallback, max_weight, limb_distance, plateau_s, twist, limb_gate, still_gate, "
-    "gated_twist, short_chain, database",
+    "gated_twist, short_chain, pca_gate, database",
 )
 def _knn_angles(
     context: MethodContext, database: str | None = None, **options: Any

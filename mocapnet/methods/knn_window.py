@@ -157,7 +157,10 @@ class WindowSettings:
     weight β the gap would have had ungated) instead of from interpolation: the gate then swaps only what
     positions determine to PCA; ``short_chain`` (cm, joint space): in the PCA fallback, a joint whose
     subtree lies within this of it keeps the reference's angles for itself and its subtree
-    (``knn_angles.short_chains``; None: never)."""
+    (``knn_angles.short_chains``; None: never); ``pca_gate`` (joint space): a gap whose limb
+    distance exceeds this many times PCA's own error at rebuilding the limb in the window's margins
+    (``knn_angles.pca_margin_error``, cm) takes the fallback only: PCA is used where it reconstructs the
+    observed margins better than the neighbours match them (None: never)."""
 
     k: int = 16
     margin_s: float = 0.3
@@ -176,15 +179,16 @@ class WindowSettings:
     still_gate: float | None = None
     gated_twist: bool = False
     short_chain: float | None = None
+    pca_gate: float | None = None
 
     def __post_init__(self) -> None:
-        gates = (self.plateau_s, self.limb_gate, self.still_gate, self.short_chain)
+        gates = (self.plateau_s, self.limb_gate, self.still_gate, self.short_chain, self.pca_gate)
         positive = all(v is None or v > 0 for v in gates)
         choices = self.fallback in ("lerp", "pca") and self.twist in ("lerp", "knn", "blend")
         if self.k < 1 or not 0.0 <= self.max_weight <= 1.0 or not choices or not positive:
             raise ValueError(
                 "knn: k must be >= 1, max_weight in [0, 1], fallback lerp or pca, twist lerp, knn or blend, "
-                f"plateau_s, limb_gate, still_gate and short_chain > 0; got {self}"
+                f"plateau_s, limb_gate, still_gate, short_chain and pca_gate > 0; got {self}"
             )
 
 

@@ -37,6 +37,7 @@ from mocapnet.methods.knn_angles import (
     limb_motion,
     limb_rms,
     pca_angles,
+    pca_margin_error,
     point_parents,
     points_visible,
     short_chains,
@@ -438,6 +439,7 @@ def test_max_weight_caps_the_knn_share_and_bad_settings_are_refused() -> None:
         {"limb_gate": -1.0},
         {"twist": "x"},
         {"short_chain": 0.0},
+        {"pca_gate": 0.0},
     )
     for bad in bad_settings:
         with pytest.raises(ValueError, match="knn: k must be"):
@@ -491,15 +493,21 @@ def test_limb_gates_fall_back_to_pca_and_keep_the_truth(parts) -> None:
     noisy, mask = _segment_gap(truth, "segment-gap:left-arm:1", seed=4)
     other = SkeletonDatabase.from_motions([parts[0], parts[2]])
     scored = mask & truth.skeleton.scored_mask[None]
-    for gate in ({"limb_gate": 1e-6}, {"still_gate": 1e-9}):
+    fallback = _fallback(noisy, mask, lerp_fill(noisy.channels, mask))
+    ungated, _ = fill_angles(noisy, mask, other, WindowSettings(**_PLAIN))
+    assert np.abs(wrap_deg(ungated - fallback))[scored].max() > 1.0  # a gate that did nothing would fail below
+    for gate in ({"limb_gate": 1e-6}, {"still_gate": 1e-9}, {"pca_gate": 1e-9}):
         gated, stats = fill_angles(noisy, mask, other, WindowSettings(**{**_PLAIN, **gate}))
         assert min(stats.limb_distance) > 1e-6
-        assert np.allclose(gated[scored], _fallback(noisy, mask, lerp_fill(noisy.channels, mask))[scored], atol=1e-9)
+        assert np.allclose(gated[scored], fallback[scored], atol=1e-9)
+        assert np.array_equal(gated[~mask], noisy.channels[~mask])
+    wide, _ = fill_angles(noisy, mask, other, WindowSettings(**{**_PLAIN, "pca_gate": 1e9}))
+    assert np.array_equal(wide, ungated)  # a gate above every ratio changes nothing
     db = SkeletonDatabase.from_motions([parts[0], truth.with_channels(truth.channels), parts[2]])
     db.names = ("part0", "copy of the truth", "part1800")
     for twist in ("lerp", "knn", "blend"):
         for gated_twist in (False, True):
-            gates = {"limb_gate": 1.0, "still_gate": 1.0, "twist": twist, "gated_twist": gated_twist}
+            gates = {"limb_gate": 1.0, "still_gate": 1.0, "pca_gate": 1.0, "twist": twist, "gated_twist": gated_twist}
             out, _ = fill_angles(noisy, mask, db, WindowSettings(**{**ANGLE_DEFAULTS, **gates}))
             assert _gap_rms(out, truth.channels, mask) < 1e-3
 
@@ -530,6 +538,26 @@ def test_limb_motion_is_the_limbs_own_rms_about_its_mean_where_observed() -> Non
     assert np.isclose(limb_motion(feats, np.arange(10), w, (4, 6)), 2.0)
     w[:, 2] = 0.0
     assert np.isnan(limb_motion(feats, np.arange(10), w, (4, 6)))
+
+
+def test_pca_margin_error_is_pcas_own_error_at_rebuilding_the_limb_where_it_is_observed() -> None:
+    """A limb point that moves with the rest of the body (rank-one motion, amplitude ~10 cm) is rebuilt in the
+    margins to within 0.1 cm (Federolf's ``M V0 T V1ᵀ`` is close, not exact); one that moves on its own is not
+    (about its own RMS motion); a limb never observed in the window gives NaN."""
+    t = np.arange(200)
+    rng = np.random.default_rng(5)
+    pos = rng.normal(scale=20.0, size=(1, 6, 3)) + rng.normal(size=(1, 6, 3)) * 10.0 * np.sin(t / 9.0)[:, None, None]
+    visible = np.ones((200, 6), dtype=bool)
+    visible[90:110, 5] = False  # point 5 (the limb) missing in the gap [90, 110)
+    grid = np.arange(70, 130, 2)
+    w = visible[grid].astype(float)
+    assert pca_margin_error(pos, visible, grid, w, (90, 110)) < 0.1
+    own = pos.copy()
+    own[:, 5] += rng.normal(scale=3.0, size=(200, 3))  # the limb's own motion, unrelated to the others
+    err = pca_margin_error(own, visible, grid, w, (90, 110))
+    assert 3.0 < err < 10.0  # about sqrt(3) * 3 cm
+    visible[:, 5] = False
+    assert np.isnan(pca_margin_error(pos, visible, grid, np.zeros_like(w), (90, 110)))
 
 
 def test_gated_twist_keeps_the_pca_positions_and_takes_the_better_angles(parts) -> None:
