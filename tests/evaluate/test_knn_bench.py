@@ -9,7 +9,8 @@ import pytest
 
 from mocapnet.evaluate import knn_bench
 from mocapnet.evaluate.knn_bench import TUNE_CORRUPTIONS, TUNE_VARIANTS, evenly, tune_scores, variant_name, verdicts
-from mocapnet.methods.knn_window import Searcher
+from mocapnet.methods.knn_angles import ANGLE_DEFAULTS
+from mocapnet.methods.knn_window import Searcher, WindowSettings
 
 
 def _row(method: str, corruption: str, pos: float, gap: float, **extra: object) -> dict:
@@ -95,3 +96,12 @@ def test_repeat_searcher_answers_as_the_searcher_and_searches_once() -> None:
     allowed[:50] = False  # another question: searched anew
     assert not np.isin(repeat.windows(feats, weights, offsets, 8, allowed, 5)[1], np.arange(50)).any()
     assert len(repeat._answers) == 2
+
+
+def test_every_tuning_grid_starts_with_the_defaults_and_holds_valid_settings() -> None:
+    """Every grid is changes of the defaults of its time (earlier grids may now repeat today's defaults); each
+    builds, and the newest round's variants all differ from today's defaults and from each other."""
+    for name, grid in knn_bench.GRIDS.items():
+        assert grid[0] == {} and variant_name(grid[0]) == "defaults", name
+        settings = [WindowSettings(**{**ANGLE_DEFAULTS, **v}) for v in grid]  # bad settings raise ValueError
+    assert len(set(settings)) == len(knn_bench.PCA_GATE_VARIANTS) and name == "pcagate"
