@@ -128,6 +128,14 @@ PCA_GATE_VARIANTS: tuple[dict, ...] = (
     {"limb_gate": 12.0},
     {"pca_gate": 3.0, "limb_gate": 12.0},
 )
+# Round G (``--tune --grid forearm``): the PCA fallback keeps the reference's forearm angles too (Bandai at 25 cm:
+# LowerArm, whose local angles from PCA's positions inherit the upper arm's twist error), with and without
+# ``pca_gate``.
+FOREARM_VARIANTS: tuple[dict, ...] = (
+    {},
+    {"short_chain": 25.0},
+    {"short_chain": 25.0, "pca_gate": 3.0},
+)
 GRIDS = {
     "main": TUNE_VARIANTS,
     "plateau": PLATEAU_VARIANTS,
@@ -136,6 +144,7 @@ GRIDS = {
     "still": STILL_VARIANTS,
     "fallback": FALLBACK_VARIANTS,
     "pcagate": PCA_GATE_VARIANTS,
+    "forearm": FOREARM_VARIANTS,
 }
 
 

@@ -104,4 +104,4 @@ def test_every_tuning_grid_starts_with_the_defaults_and_holds_valid_settings() -
     for name, grid in knn_bench.GRIDS.items():
         assert grid[0] == {} and variant_name(grid[0]) == "defaults", name
         settings = [WindowSettings(**{**ANGLE_DEFAULTS, **v}) for v in grid]  # bad settings raise ValueError
-    assert len(set(settings)) == len(knn_bench.PCA_GATE_VARIANTS) and name == "pcagate"
+    assert len(set(settings)) == len(knn_bench.FOREARM_VARIANTS) and name == "forearm"
