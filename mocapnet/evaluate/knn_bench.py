@@ -460,8 +460,9 @@ def markdown(report: dict) -> str:
         "in the per-corruption tables to the better of lerp and spline (the one reference rule).",
         f"- knn settings (BVH), the defaults now: `{WindowSettings(**ANGLE_DEFAULTS)}`, chosen on bandai2 fold 1 "
         "(`knn_tuning.md`, then `knn_tuning_plateau.md`; `knn_tuning_twist.md`, `_gate.md` and `_still.md` changed "
-        "nothing; then `knn_tuning_fallback.md`: twist, gated_twist, short_chain, still_gate; `knn_tuning_pcagate.md` and "
-        "`_forearm.md` changed nothing). C3D knn: the registered default (`search=energy`).",
+        "nothing; then `knn_tuning_fallback.md`: twist, gated_twist, short_chain, still_gate; "
+        "`knn_tuning_pcagate.md` and `_forearm.md` changed nothing). C3D knn: the registered default "
+        "(`search=energy`).",
         "",
         "## Done when (issue 12)",
         "",
