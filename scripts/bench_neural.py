@@ -6,7 +6,7 @@
     python scripts/bench_neural.py --method ebf-free=runs/x/best.ckpt --skip-speed   # a candidate checkpoint
     python scripts/bench_neural.py --split val --corpus bandai2 --select --no-shipped \\
         --method ebf=a.ckpt --method ebf=b.ckpt --skip-bins --skip-speed       # choose among candidates (fold 1)
-    python scripts/bench_neural.py --split style:elderly --corpus bandai2 --select --no-shipped \
+    python scripts/bench_neural.py --split style:elderly --corpus bandai2 --select --no-shipped \\
         --method ebf-free=noeld.ckpt --skip-bins --skip-speed   # transfer to a style the model never saw
     python scripts/bench_neural.py --only stream      # rerun the streaming timing; keep the rest of the file
 """
@@ -31,7 +31,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--no-shipped", action="store_true", help="score only --method, not the shipped variants")
     parser.add_argument(
         "--split",
-        type=bench.check_split,
+        type=bench.split_arg,
         default="test",
         help="fold-0 test clips (test), fold-1 clips for selection (val), or every clip of one style "
         "(style:NAME, for models trained with data.holdout_style=NAME)",

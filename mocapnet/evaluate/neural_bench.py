@@ -3,6 +3,7 @@ speed; ``scripts/bench_neural.py`` is its command line.
 
 Quality: each corruption on a split of a corpus (``split="test"``: fold-0 test clips, the models trained on
 folds 2-4 and were selected on fold 1; ``split="val"``: the fold-1 clips, for choosing between checkpoints;
+``split="style:NAME"``: the clips of one style outside fold 0, for models trained without that style;
 bandai1 is test only). Scoring is ``harness.evaluate_angles`` and each row ``report.summarize``: mean over
 (clip, repeat) of per-clip RMS errors and the ratio to the best reference baseline of ``harness.reference``
 (the best of gaussian-58ms, gaussian-125ms and gaussian-tuned for noise; the better of lerp and spline for
@@ -15,6 +16,7 @@ time of ``EBFStream.push`` per frame.
 
 from __future__ import annotations
 
+import argparse
 import json
 import os
 import resource
@@ -44,6 +46,14 @@ SPLITS = ("test", "val")
 #: Prefix of the unseen-style split (``"style:elderly"``): every clip of one style, for models trained with
 #: ``data.holdout_style`` set to it (a transfer check inside bandai2; bandai1 stays the test).
 STYLE_SPLIT = "style:"
+
+
+def split_arg(split: str) -> str:
+    """``check_split`` for argparse (its message shown as the error)."""
+    try:
+        return check_split(split)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def check_split(split: str) -> str:
@@ -77,15 +87,20 @@ def neural_methods(corruption: str, motion: Motion, extra: Sequence[str], shippe
 
 def split_clips(name: str, split: str, n_clips: int | None):
     """``(corpus, scored clips, training clips)``: fold-0 test clips (``"test"``), the fold-1 validation
-    clips (``"val"``, bandai2-style corpora only), or every clip of one style (``"style:NAME"``, with the
-    training clips of fold 0 without that style, which ``gaussian-tuned`` is tuned on); ``n_clips`` of them
+    clips (``"val"``, bandai2-style corpora only), or the clips of one style outside the fold-0 test clips
+    (``"style:NAME"``, for models trained with ``holdout_style=NAME``; the training clips are fold 0's without
+    that style, which ``gaussian-tuned`` is tuned on; ValueError when there is none); ``n_clips`` of them
     (``subset``)."""
     check_split(split)
     corpus = load_corpus(name, progress=False)
     if split.startswith(STYLE_SPLIT):
         style = split[len(STYLE_SPLIT) :]
-        train, _, _ = corpus.split(0, holdout_style=style)
-        return corpus, gap_bins_module.subset(corpus.style_clips(style), n_clips), train
+        train, _, test = corpus.split(0, holdout_style=style)
+        held_out = {m.name for m in test}
+        clips = [m for m in corpus.style_clips(style) if m.name not in held_out]
+        if not clips:
+            raise ValueError(f"{name}: no clip of style {style!r} outside the fold-0 test clips")
+        return corpus, gap_bins_module.subset(clips, n_clips), train
     train, val, test = corpus.split(0)
     return corpus, gap_bins_module.subset(test if split == "test" else val, n_clips), train
 

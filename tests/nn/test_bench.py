@@ -51,6 +51,8 @@ def test_bandai1_cannot_be_a_selection_split():
     assert module.parse_args(["--split", "style:elderly", "--corpus", "bandai2"]).split == "style:elderly"
     with pytest.raises(ValueError, match="style:NAME"):
         bench.check_split("style:")
+    with pytest.raises(SystemExit):
+        module.parse_args(["--split", "style:", "--corpus", "bandai2"])
 
 
 def test_only_stream_keeps_the_other_parts(tmp_path, monkeypatch):
@@ -85,4 +87,10 @@ def test_style_split_scores_only_that_style_and_tunes_without_it(monkeypatch):
     monkeypatch.setattr(bench, "load_corpus", lambda name, progress: corpus)
     _, clips, train = bench.split_clips("fake", "style:elderly", 4)
     assert len(clips) == 4 and all("_elderly_" in m.name for m in clips)
+    assert all(corpus.folds[m.name] != 0 for m in clips)  # the fold-0 test clips stay unseen
     assert train and not any("_elderly_" in m.name for m in train)
+    assert all(corpus.folds[m.name] not in (0, 1) for m in train)
+    with pytest.raises(ValueError, match="no clip of style 'elderly' outside"):
+        only_test = Corpus("fake", Path("."), motions, {n: 0 if "_elderly_" in n else 2 for n in names})
+        monkeypatch.setattr(bench, "load_corpus", lambda name, progress: only_test)
+        bench.split_clips("fake", "style:elderly", 4)
