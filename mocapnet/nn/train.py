@@ -72,11 +72,13 @@ def configure_torch(threads: int | None) -> None:
     torch.set_flush_denormal(True)
 
 
-def resume_path(ckpt_path: str | None, ckpt_dir: Path) -> str | None:
+def resume_path(ckpt_path: str | None, ckpt_dir: Path, averaged: bool = False) -> str | None:
     """The checkpoint a run resumes from: ``"last"`` → ``ckpt_dir/last.ckpt`` when it exists (else a fresh
     start), a path → that file, None → a fresh start. The file is read once as data first
     (``checkpoints.read_checkpoint``: FileNotFoundError, or MocapFileError naming it when it is truncated,
-    foreign or would need code to load); Lightning then loads it with ``weights_only=True`` too."""
+    foreign or would need code to load); Lightning then loads it with ``weights_only=True`` too. ``averaged``:
+    the run keeps a weight average (``ema_decay``); a checkpoint written with the other setting is refused
+    (MocapFileError), since its ``state_dict`` would be taken for the wrong weights."""
     if ckpt_path is None:
         return None
     path = ckpt_dir / "last.ckpt" if ckpt_path == "last" else Path(ckpt_path)
@@ -85,6 +87,9 @@ def resume_path(ckpt_path: str | None, ckpt_dir: Path) -> str | None:
     ckpt = read_checkpoint(path)
     if "loops" not in ckpt or "state_dict" not in ckpt:
         raise MocapFileError(f"{path}: not a training checkpoint to resume from (no loop state); start afresh")
+    if ("current_model_state" in ckpt) != averaged:
+        was = "with" if "current_model_state" in ckpt else "without"
+        raise MocapFileError(f"{path}: written {was} ema_decay; resume with the same setting or start afresh")
     return str(path)
 
 
@@ -117,22 +122,24 @@ def weight_averaging(ema_decay: float | None) -> list[EMAWeightAveraging]:
     """The weight-averaging callback for ``ema_decay`` (none for ``None``), else ValueError."""
     if ema_decay is None:
         return []
-    if not 0.0 < float(ema_decay) < 1.0:
-        raise ValueError(f"training config: ema_decay must be in (0, 1) or null, got {ema_decay!r}")
-    return [EMAWeightAveraging(decay=float(ema_decay))]
+    if isinstance(ema_decay, bool) or not isinstance(ema_decay, (int, float)) or not 0.0 < ema_decay < 1.0:
+        raise ValueError(f"training config: ema_decay must be a number in (0, 1) or null, got {ema_decay!r}")
+    # the buffers (the normaliser) are fixed before training: averaging them would only add rounding drift
+    return [EMAWeightAveraging(decay=float(ema_decay), use_buffers=False)]
 
 
 def train(cfg: DictConfig) -> Path:
     """Fit the configured model; return the path of the best checkpoint (or the last one when validation
     never ran). Writes ``<run_dir>/config.yaml`` and ``<run_dir>/result.json`` (best score, paths)."""
     averaging = weight_averaging(cfg.get("ema_decay"))
+    run_dir = Path(cfg.run_dir)
+    ckpt_dir = run_dir / "checkpoints"
+    ckpt_path = resume_path(cfg.get("ckpt_path"), ckpt_dir, averaged=bool(averaging))
     configure_torch(cfg.get("threads"))
     L.seed_everything(cfg.seed, workers=True)
-    run_dir = Path(cfg.run_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
     (run_dir / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
     data, model = build(cfg)
-    ckpt_dir = run_dir / "checkpoints"
     best = ModelCheckpoint(
         dirpath=ckpt_dir, filename="best", monitor=model.val_metric, mode="min", save_last=True, save_top_k=1
     )
@@ -140,7 +147,6 @@ def train(cfg: DictConfig) -> Path:
     callbacks += averaging
     logger = hydra.utils.instantiate(cfg.logger, save_dir=str(run_dir)) if cfg.get("logger") else False
     trainer = L.Trainer(**OmegaConf.to_container(cfg.trainer, resolve=True), callbacks=callbacks, logger=logger)
-    ckpt_path = resume_path(cfg.get("ckpt_path"), ckpt_dir)
     trainer.fit(model, datamodule=data, ckpt_path=ckpt_path, weights_only=True)
     result = Path(best.best_model_path) if best.best_model_path else ckpt_dir / "last.ckpt"
     if trainer.is_global_zero:

@@ -12,6 +12,7 @@ import pytest
 import torch
 from omegaconf import OmegaConf
 
+from mocapnet.io.atomic import MocapFileError
 from mocapnet.nn import EBD, EBF, WindowMLP
 from mocapnet.nn.checkpoints import read_checkpoint
 from mocapnet.nn.data import MotionDataModule
@@ -159,16 +160,23 @@ def test_ema_checkpoints_hold_the_averaged_weights_and_resume(tmp_path):
     resuming); a resumed run continues the average; a bad decay is refused before anything is written."""
     base = [f"runs_root={tmp_path}", "name=ema", "ema_decay=0.5"] + QUICK + TINY_MODEL["ebf"]
     train(compose_cfg(base + ["trainer.max_epochs=1"]))
-    first = read_checkpoint(tmp_path / "ema" / "checkpoints" / "last.ckpt")
-    raw, averaged = first["current_model_state"], first["state_dict"]
-    assert raw.keys() == averaged.keys()
-    weights = [k for k in raw if raw[k].is_floating_point() and "encoder" in k]
-    assert weights and any(not torch.equal(raw[k], averaged[k]) for k in weights)
+    for name in ("last.ckpt", "best.ckpt"):
+        first = read_checkpoint(tmp_path / "ema" / "checkpoints" / name)
+        raw, averaged = first["current_model_state"], first["state_dict"]
+        assert raw.keys() == averaged.keys()
+        weights = [k for k in raw if raw[k].is_floating_point() and "encoder" in k]
+        assert weights and any(not torch.equal(raw[k], averaged[k]) for k in weights)
+        for buffer in ("center", "scale", "angvel_scale"):  # the normaliser is not averaged
+            assert torch.equal(raw[buffer], averaged[buffer])
     train(compose_cfg(base + ["trainer.max_epochs=2"]))
     resumed = read_checkpoint(tmp_path / "ema" / "checkpoints" / "last.ckpt")
     assert resumed["global_step"] == 4 and int(resumed["averaging_state"]["n_averaged"]) == 4
     model = EBF.load_from_checkpoint(tmp_path / "ema" / "checkpoints" / "last.ckpt", weights_only=True)
     torch.testing.assert_close(model.state_dict()[weights[0]], resumed["state_dict"][weights[0]])
-    with pytest.raises(ValueError, match="ema_decay"):
-        train(compose_cfg([f"runs_root={tmp_path}", "name=bad", "ema_decay=1.5"] + QUICK))
+    for bad in ("1.5", "abc"):
+        with pytest.raises(ValueError, match="ema_decay"):
+            train(compose_cfg([f"runs_root={tmp_path}", "name=bad", f"ema_decay={bad}"] + QUICK))
     assert not (tmp_path / "bad").exists()
+    without = [o for o in base if o != "ema_decay=0.5"] + ["trainer.max_epochs=3"]
+    with pytest.raises(MocapFileError, match="written with ema_decay"):  # resuming must keep the setting
+        train(compose_cfg(without))
