@@ -68,6 +68,11 @@ def test_gaussian_tuned_picks_per_channel_sigma(cmu):
 def test_parse_method_strings():
     assert parse_method("gaussian-58ms") == ("gaussian-58ms", {})
     assert parse_method("knn:k=8,levels=3,database=/a/b") == ("knn", {"k": 8, "levels": 3, "database": "/a/b"})
+    words = parse_method("knn:gated_twist=false,offset=True,short_chain=none,pca_gate=NULL,fallback=pca")
+    assert words == (
+        "knn",
+        {"gated_twist": False, "offset": True, "short_chain": None, "pca_gate": None, "fallback": "pca"},
+    )
     assert parse_method("ebd+ebf=a.ckpt,b.ckpt") == ("ebd+ebf", {"checkpoints": ["a.ckpt", "b.ckpt"]})
     assert parse_method("ebd+ebf=a.ckpt,b.ckpt:mode=windowed") == (
         "ebd+ebf",

@@ -183,6 +183,13 @@ class WindowSettings:
 
     def __post_init__(self) -> None:
         gates = (self.plateau_s, self.limb_gate, self.still_gate, self.short_chain, self.pca_gate)
+        flags = (self.offset, self.own, self.limb_distance, self.gated_twist)
+        if not all(isinstance(v, bool) for v in flags):
+            raise ValueError(f"knn: offset, own, limb_distance and gated_twist must be true or false; got {self}")
+        if not all(v is None or (isinstance(v, (int, float)) and not isinstance(v, bool)) for v in gates):
+            raise ValueError(
+                f"knn: plateau_s, limb_gate, still_gate, short_chain and pca_gate must be numbers or none; got {self}"
+            )
         positive = all(v is None or v > 0 for v in gates)
         choices = self.fallback in ("lerp", "pca") and self.twist in ("lerp", "knn", "blend")
         if self.k < 1 or not 0.0 <= self.max_weight <= 1.0 or not choices or not positive:

@@ -163,12 +163,21 @@ def register(name: str, space: str, help: str) -> Callable:
     return deco
 
 
+#: Option spellings that are not Python literals but mean one: ``knn:gated_twist=false``, ``short_chain=none``.
+_WORDS = {"true": True, "false": False, "none": None, "null": None}
+
+
 def _parse_options(text: str, rest: str) -> dict[str, Any]:
+    """``key=value`` items (Python literals; true/false/none/null in any case; else the bare string)."""
     options: dict[str, Any] = {}
     for item in filter(None, rest.split(",")):
         key, eq, value = item.partition("=")
         if not eq:
             raise ValueError(f"method {text!r}: option {item!r} must be key=value")
+        word = value.strip().lower()
+        if word in _WORDS:
+            options[key.strip()] = _WORDS[word]
+            continue
         try:
             options[key.strip()] = ast.literal_eval(value.strip())
         except (ValueError, SyntaxError):

@@ -444,6 +444,9 @@ def test_max_weight_caps_the_knn_share_and_bad_settings_are_refused() -> None:
     for bad in bad_settings:
         with pytest.raises(ValueError, match="knn: k must be"):
             WindowSettings(**bad)
+    for bad in ({"gated_twist": "false"}, {"offset": 1}, {"short_chain": "none"}, {"pca_gate": True}):
+        with pytest.raises(ValueError, match="knn: .* must be"):  # a misspelt flag or gate is not taken as set
+            WindowSettings(**bad)
 
 
 def test_kabsch_per_pair_recovers_a_rotation_and_cluster_fill_stays_exact(walk, database) -> None:
