@@ -39,9 +39,9 @@ For every *gap* (maximal run of frames in which some scored channel is missing):
    over the whole window (``pca_margin_error``). A gated gap's reference is
    interpolation, or with ``gated_twist`` still ``twist``'s (``blend``: with the β it would have had), so that
    the gate changes only what positions determine: f's joint positions are PCA's either way. With
-   ``short_chain`` (cm), a joint whose subtree lies that close to it (Bandai at 15 cm: neck, head, hands, feet, toes) and its subtree keep the
-   reference's angles instead (``short_chains``): positions a few cm apart set angles poorly. With
-   the truth in the database σ = 0 and the fill is exact.
+   ``short_chain`` (cm), a joint whose subtree lies that close to it (Bandai at 15 cm: neck, head, hands,
+   feet, toes) and its subtree keep the reference's angles instead (``short_chains``): positions a few cm
+   apart set angles poorly. With the truth in the database σ = 0 and the fill is exact.
 
 Observed samples and unscored channels are never changed; missing unscored channels are interpolated.
 """
