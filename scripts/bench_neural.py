@@ -52,6 +52,10 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--timing-repeats", type=int, default=5)
     parser.add_argument("--out", default=os.path.join("benchmarks", "results", "neural"), help="path without suffix")
     args = parser.parse_args(argv)
+    if args.split != "test" and not (args.skip_bins or args.only):
+        parser.error(
+            "the gap-length bins are scored on fold-0 test clips: give --skip-bins with --split val or style:NAME"
+        )
     if args.split != "test" and "bandai1" in (args.corpus or ["bandai1"]):
         parser.error("bandai1 is test only (never select on it): give --corpus bandai2 with --split val or style:NAME")
     return args
