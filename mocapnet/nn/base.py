@@ -12,7 +12,10 @@ Input normalisation (``norm`` hyper-parameter of the networks that offer it, def
 * ``"clip"``: each clip's own statistics of its (noisy) input, ``clip_statistics``: circular centre and std
   per channel, RMS of the root angular velocity. Protocol noise is ``K·σ_c`` with ``σ_c`` the clip's own
   std, so after dividing by the clip's std every clip shows the network the same relative noise, whatever its
-  corpus, performer or amplitude.
+  corpus, performer or amplitude;
+* ``"both"``: the corpus-normalised and the clip-normalised inputs side by side (corpus first; the clip's
+  statistics otherwise, e.g. for the bias bound): relative noise looks alike in every clip, as with ``"clip"``,
+  and absolute noise (a fixed number of cm) keeps its size, as with ``"corpus"``.
 """
 
 from __future__ import annotations
@@ -29,9 +32,19 @@ from mocapnet.kinematics import wrap_deg
 from mocapnet.nn.features import MIN_SCALE_DEG, Normaliser
 
 #: Input normalisation modes (module docstring).
-NORMS = ("corpus", "clip")
+NORMS = ("corpus", "clip", "both")
 #: Batch keys of a clip's input statistics (``clip_statistics``).
 NORM_KEYS = ("center", "scale", "angvel_scale")
+
+
+def n_inputs(n_channels: int, norm: str) -> int:
+    """Width of ``CleanerModule.input_features`` for ``n_channels`` scored channels."""
+    return (n_channels + 3) * (2 if norm == "both" else 1)
+
+
+def uses_clip_statistics(model: torch.nn.Module) -> bool:
+    """Whether ``model`` normalises its inputs with each clip's statistics (``norm`` ``"clip"`` or ``"both"``)."""
+    return model.hparams.get("norm", "corpus") != "corpus"
 
 
 def clip_statistics(filled: torch.Tensor, angvel: torch.Tensor) -> dict[str, torch.Tensor]:
@@ -92,6 +105,17 @@ class CleanerModule(L.LightningModule, ABC):
     def angvel_features(self, angvel: torch.Tensor, stats: dict[str, torch.Tensor] | None = None) -> torch.Tensor:
         """Root angular velocity ``[..., 3]`` (rad/s) → scaled, clipped to ±8 (``stats`` as in ``normalise``)."""
         return (angvel / (self.angvel_scale if stats is None else stats["angvel_scale"])).clamp(-8.0, 8.0)
+
+    def input_features(
+        self, filled: torch.Tensor, angvel: torch.Tensor, stats: dict[str, torch.Tensor]
+    ) -> torch.Tensor:
+        """Scored channels ``[..., T, C]`` (degrees) and root angular velocity ``[..., T, 3]`` (rad/s) →
+        ``[..., T, n_inputs(C)]``: both normalised with ``stats`` (from ``input_stats``), after the same with
+        the corpus buffers for ``norm="both"``."""
+        own = torch.cat([self.normalise(filled, stats), self.angvel_features(angvel, stats)], dim=-1)
+        if self.hparams.get("norm", "corpus") != "both":
+            return own
+        return torch.cat([self.normalise(filled), self.angvel_features(angvel), own], dim=-1)
 
     def loss_terms(self, batch: dict[str, torch.Tensor], pred: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Squared errors (degrees²) and the boolean selection ``[B, T, C]`` they are averaged over."""

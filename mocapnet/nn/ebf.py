@@ -14,7 +14,8 @@ a filter head of ``head_layers`` tanh layers ends in the filter parameters:
 
 ``norm="corpus"`` (default) normalises the inputs with the training set's statistics; ``norm="clip"`` with
 each clip's own (``base.clip_statistics`` of the noisy input), and then the bias is in units of that clip's
-scale too, so the network sees the same relative noise on a clip of any corpus. ``change_limit`` is used at
+scale too, so the network sees the same relative noise on a clip of any corpus; ``norm="both"`` gives it both
+inputs side by side (``base.input_features``; offline only: no streaming kernel). ``change_limit`` is used at
 inference only: the self-check factor of ``infer.limit_change`` (0: off), chosen on the validation fold and
 stored with the checkpoint.
 
@@ -31,7 +32,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from mocapnet.nn.base import NORMS, CleanerModule
+from mocapnet.nn.base import NORMS, CleanerModule, n_inputs
 from mocapnet.nn.layers import (
     BLSTM,
     gaussian_filter,
@@ -84,7 +85,7 @@ class EBF(CleanerModule):
         if not bias_bound > 0:
             raise ValueError(f"bias_bound must be positive, got {bias_bound!r}")
         self.save_hyperparameters()
-        n_in = n_channels + 3
+        n_in = n_inputs(n_channels, norm)
         encoder = mlp(tapered(n_in, code, encoder_layers), last_activation=True) if encoder_layers else None
         self.encoder = encoder or nn.Identity()
         self.blstm = BLSTM(code if encoder_layers else n_in, hidden, layers=2, dropout=dropout)
@@ -106,10 +107,11 @@ class EBF(CleanerModule):
     def features(
         self, filled: torch.Tensor, angvel: torch.Tensor, stats: dict[str, torch.Tensor] | None = None
     ) -> torch.Tensor:
-        """``[B, T, C]`` degrees and ``[B, T, 3]`` rad/s → encoder input ``[B, T, C + 3]``, normalised with
-        ``stats`` (from ``input_stats``; default ``input_stats(filled, angvel)``)."""
+        """``[B, T, C]`` degrees and ``[B, T, 3]`` rad/s → encoder input ``[B, T, n_inputs(C, norm)]``
+        (``input_features``), normalised with ``stats`` (from ``input_stats``; default
+        ``input_stats(filled, angvel)``)."""
         stats = self.input_stats(filled, angvel) if stats is None else stats
-        return torch.cat([self.normalise(filled, stats), self.angvel_features(angvel, stats)], dim=-1)
+        return self.input_features(filled, angvel, stats)
 
     def filter_weights(self, params: torch.Tensor) -> torch.Tensor:
         """Head output ``[B, T, P]`` → tap weights ``[B, C, T, K]`` (each row sums to 1)."""

@@ -23,7 +23,7 @@ from mocapnet.fill import lerp_fill
 from mocapnet.io.atomic import MocapFileError
 from mocapnet.kinematics import wrap_deg
 from mocapnet.motion import Skeleton
-from mocapnet.nn.base import NORM_KEYS, CleanerModule, clip_statistics
+from mocapnet.nn.base import NORM_KEYS, CleanerModule, clip_statistics, uses_clip_statistics
 from mocapnet.nn.checkpoints import read_checkpoint
 from mocapnet.nn.ebd import EBD, GapBlend, blend_gaps
 from mocapnet.nn.features import root_angular_velocity, scored_index, topology_hash
@@ -186,7 +186,7 @@ def clean_channels(
     w = torch.as_tensor(root_angular_velocity(skeleton, result, fps), dtype=torch.float32)
     if mode == "sequence":
         batch = {"filled": x[None], "mask": m[None], "angvel": w[None]}
-        if model.hparams.get("norm", "corpus") == "clip":
+        if uses_clip_statistics(model):
             batch |= clip_statistics(x[None], w[None])
         out = predict_sequence(model, batch)
     else:

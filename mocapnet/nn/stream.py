@@ -380,6 +380,11 @@ class EBFStream:
             raise TypeError("EBFStream streams EBF (and BF) models")
         if backend not in BACKENDS:
             raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
+        if model.hparams.get("norm", "corpus") not in ("corpus", "clip"):
+            raise ValueError(
+                f"EBFStream: no streaming kernel for norm={model.hparams.norm!r} networks; clean offline "
+                "(mocapnet clean, clean_channels) or use a norm='corpus' or 'clip' network"
+            )
         if backend == "onnx" and not onnx_kernel.available():
             raise ValueError("backend='onnx' needs the optional packages onnx and onnxruntime (mocapnet[onnx])")
         check_skeleton(model, skeleton, fps=fps)

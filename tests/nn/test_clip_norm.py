@@ -156,3 +156,33 @@ def test_wrap_deg_is_the_same_formula_on_tensors_and_arrays():
     assert t.dtype == torch.float32
     np.testing.assert_array_equal(t.numpy(), wrap_deg(x))
     np.testing.assert_array_equal(t.numpy(), (torch.remainder(torch.from_numpy(x) + 180.0, 360.0) - 180.0).numpy())
+
+
+def test_norm_both_feeds_corpus_then_clip_inputs_and_cleans_offline_only(sample, tiny, batch, tmp_path):
+    """``norm="both"``: the encoder input is the corpus-normalised features followed by the clip-normalised ones;
+    it trains on batches with clip statistics, cleans a clip offline in both modes, and streaming refuses it."""
+    from mocapnet.nn.base import n_inputs
+    from mocapnet.nn.stream import EBFStream
+
+    both = tiny("ebf-free", sample, norm="both").eval()
+    corpus, clip = tiny("ebf-free", sample), tiny("ebf-free", sample, norm="clip")
+    n = batch["filled"].shape[-1]
+    assert both.encoder[0].in_features == n_inputs(n, "both") == 2 * (n + 3)
+    stats = clip_statistics(batch["filled"], batch["angvel"])
+    features = both.features(batch["filled"], batch["angvel"], stats)
+    torch.testing.assert_close(features[..., : n + 3], corpus.features(batch["filled"], batch["angvel"]))
+    torch.testing.assert_close(features[..., n + 3 :], clip.features(batch["filled"], batch["angvel"], stats))
+    both.train()
+    loss = both.training_step(batch | stats, 0)
+    loss.backward()
+    assert torch.isfinite(loss) and both.encoder[0].weight.grad.abs().sum() > 0
+    both.eval()
+    noisy = sample.channels + np.random.default_rng(1).normal(0.0, 0.5, sample.channels.shape)
+    mask = np.zeros(noisy.shape, dtype=bool)
+    for mode in ("sequence", "windowed"):
+        out = clean_channels(both, noisy, mask, sample.skeleton, sample.fps, mode)
+        assert out.shape == noisy.shape and np.isfinite(out).all()
+    with pytest.raises(ValueError, match="no streaming kernel for norm='both'"):
+        EBFStream(both, sample.skeleton, sample.fps)
+    with pytest.raises(ValueError, match="norm must be one of"):
+        tiny("ebf-free", sample, norm="neither")
