@@ -4,7 +4,8 @@ optimiser, and validation that accumulates one RMS error over a whole validation
 A batch is a dict of float32 tensors (see ``mocapnet.nn.data``): ``filled [B, T, C]`` the corrupted scored
 channels with gaps linearly interpolated (degrees), ``mask [B, T, C]`` True where missing, ``clean [B, T, C]``
 the truth (degrees), ``angvel [B, T, 3]`` the root angular velocity (rad/s); optionally the clip statistics
-of ``NORM_KEYS`` (``[B, 1, C]``, ``[B, 1, C]``, ``[B, 1, 3]``) that a ``norm="clip"`` network normalises with.
+of ``NORM_KEYS`` (``[B, 1, C]``, ``[B, 1, C]``, ``[B, 1, 3]``) that a ``norm="clip"``/``"both"`` network
+normalises with.
 
 Input normalisation (``norm`` hyper-parameter of the networks that offer it, default ``"corpus"``):
 

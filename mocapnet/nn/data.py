@@ -31,11 +31,12 @@ with the same ``spline_max_s``, since it predicts a correction to that interpola
 
 Validation clips are corrupted once with ``corrupt_motion`` and the protocol's seeds (repeat 0).
 
-Clip statistics (``base.NORM_KEYS``, used by ``norm="clip"`` networks). A validation clip carries those of its
-whole noisy input (``base.clip_statistics``), as inference computes them. A training crop carries those its
-whole clip would have with the crop's noise (``crop_statistics``): the clean clip's circular centre shifted by
-the crop's mean noise, the clean clip's variance plus the crop's noise variance, the clean clip's angular
-velocity RMS times the time-warp rate; so a crop of 31 frames is normalised as the whole clip would be.
+Clip statistics (``base.NORM_KEYS``, used by ``norm="clip"`` and ``"both"`` networks). A validation clip
+carries those of its whole noisy input (``base.clip_statistics``), as inference computes them. A training crop
+carries those its whole clip would have with the crop's noise (``crop_statistics``): the clean clip's circular
+centre shifted by the crop's mean noise, the clean clip's variance plus the crop's noise variance, the clean
+clip's angular velocity RMS times the time-warp rate; so a crop of 31 frames is normalised as the whole clip
+would be.
 """
 
 from __future__ import annotations

@@ -18,7 +18,7 @@ import torch
 from mocapnet.kinematics import wrap_deg, wrap_near
 from mocapnet.motion import Skeleton
 from mocapnet.nn import onnx_kernel
-from mocapnet.nn.base import NORM_KEYS
+from mocapnet.nn.base import NORM_KEYS, uses_clip_statistics
 from mocapnet.nn.ebf import EBF
 from mocapnet.nn.features import (
     MIN_SCALE_DEG,
@@ -414,7 +414,7 @@ class EBFStream:
         self._kernel = _CentreKernel(model) if usable and not use_onnx else None
         if self._kernel is not None:
             self._proj = _Ring(width, (4, 2, self._kernel.hidden), np.float32)
-        clip_norm = model.hparams.get("norm", "corpus") == "clip"
+        clip_norm = uses_clip_statistics(model)
         self.running = RunningStats(len(self.idx)) if clip_norm and stats is None else None
         fixed = (model.center.numpy(), model.scale.numpy(), model.angvel_scale.numpy())
         self._set_stats(stats if clip_norm and stats is not None else fixed)
