@@ -108,12 +108,18 @@ class CleanerModule(L.LightningModule, ABC):
         return (angvel / (self.angvel_scale if stats is None else stats["angvel_scale"])).clamp(-8.0, 8.0)
 
     def input_features(
-        self, filled: torch.Tensor, angvel: torch.Tensor, stats: dict[str, torch.Tensor]
+        self,
+        filled: torch.Tensor,
+        angvel: torch.Tensor,
+        stats: dict[str, torch.Tensor],
+        mask: torch.Tensor | None = None,
     ) -> torch.Tensor:
         """Scored channels ``[..., T, C]`` (degrees) and root angular velocity ``[..., T, 3]`` (rad/s) →
         ``[..., T, n_inputs(C)]``: both normalised with ``stats`` (from ``input_stats``), after the same with
-        the corpus buffers for ``norm="both"``."""
-        own = torch.cat([self.normalise(filled, stats), self.angvel_features(angvel, stats)], dim=-1)
+        the corpus buffers for ``norm="both"``. ``mask [..., T, C]`` (EBD) goes between the channels and the
+        angular velocity of the ``stats`` part (C more columns)."""
+        extra = [] if mask is None else [mask.to(filled.dtype)]
+        own = torch.cat([self.normalise(filled, stats), *extra, self.angvel_features(angvel, stats)], dim=-1)
         if self.hparams.get("norm", "corpus") != "both":
             return own
         return torch.cat([self.normalise(filled), self.angvel_features(angvel), own], dim=-1)

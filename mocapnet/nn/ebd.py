@@ -31,7 +31,7 @@ import torch
 
 from mocapnet.fill import gap_fill, mask_groups, runs
 from mocapnet.kinematics import wrap_near
-from mocapnet.nn.base import CleanerModule
+from mocapnet.nn.base import NORMS, CleanerModule, n_inputs
 from mocapnet.nn.layers import BLSTM, mlp, tapered
 
 
@@ -60,12 +60,16 @@ class EBD(CleanerModule):
         corpus: str = "",
         spline_max_s: float = 0.0,
         gap_blend: dict[str, Any] | None = None,
+        norm: str = "corpus",
     ) -> None:
         super().__init__(n_channels, lr, weight_decay, lr_patience)
         if gap_blend is not None:
             as_blend(gap_blend)  # refuse unknown or malformed settings now, not at the first clip
+        if norm not in NORMS:
+            raise ValueError(f"norm must be one of {NORMS}, got {norm!r}")
         self.save_hyperparameters()
-        self.encoder = mlp(tapered(2 * n_channels + 3, code, encoder_layers), last_activation=True)
+        n_in = n_inputs(n_channels, norm) + n_channels  # the inputs and the mask
+        self.encoder = mlp(tapered(n_in, code, encoder_layers), last_activation=True)
         self.blstm = BLSTM(code, hidden, layers=2, dropout=dropout, stride=stride)
         self.decoder = mlp([2 * hidden] + [width] * (decoder_layers - 1) + [n_channels], last_activation=False)
         torch.nn.init.zeros_(self.decoder[-1].weight)
@@ -82,26 +86,39 @@ class EBD(CleanerModule):
         (``fill.gap_fill`` with the ``spline_max_s`` it was trained with)."""
         return gap_fill(channels, mask, self.hparams.get("spline_max_s", 0.0) * fps)
 
-    def features(self, filled: torch.Tensor, mask: torch.Tensor, angvel: torch.Tensor) -> torch.Tensor:
-        """``[B, T, C]`` degrees, ``[B, T, C]`` bool, ``[B, T, 3]`` rad/s → encoder input ``[B, T, 2C + 3]``."""
-        return torch.cat([self.normalise(filled), mask.to(filled.dtype), self.angvel_features(angvel)], dim=-1)
+    def features(
+        self, filled: torch.Tensor, mask: torch.Tensor, angvel: torch.Tensor, stats: dict[str, torch.Tensor]
+    ) -> torch.Tensor:
+        """``[B, T, C]`` degrees, ``[B, T, C]`` bool, ``[B, T, 3]`` rad/s → encoder input ``[B, T, F]``
+        (``input_features`` with the mask; ``norm="corpus"``: normalised channels, mask, angular velocity)."""
+        return self.input_features(filled, angvel, stats, mask)
 
-    def fill(self, filled: torch.Tensor, mask: torch.Tensor, decoded: torch.Tensor) -> torch.Tensor:
-        """Missing samples ← interpolation + decoded correction × channel scale; others unchanged."""
-        return torch.where(mask, filled + decoded * self.scale, filled)
+    def fill(
+        self, filled: torch.Tensor, mask: torch.Tensor, decoded: torch.Tensor, scale: torch.Tensor
+    ) -> torch.Tensor:
+        """Missing samples ← interpolation + decoded correction × channel ``scale``; others unchanged."""
+        return torch.where(mask, filled + decoded * scale, filled)
 
-    def forward(self, filled: torch.Tensor, mask: torch.Tensor, angvel: torch.Tensor) -> torch.Tensor:
+    def forward(
+        self,
+        filled: torch.Tensor,
+        mask: torch.Tensor,
+        angvel: torch.Tensor,
+        stats: dict[str, torch.Tensor] | None = None,
+    ) -> torch.Tensor:
         """Sequence mode: ``filled [B, T, C]`` (gaps interpolated, degrees), ``mask [B, T, C]``, ``angvel
-        [B, T, 3]`` → ``[B, T, C]`` with the gaps synthesised."""
-        decoded = self.decoder(self.blstm(self.encoder(self.features(filled, mask, angvel))))
-        return self.fill(filled, mask, decoded)
+        [B, T, 3]`` → ``[B, T, C]`` with the gaps synthesised; ``stats`` as in ``EBF.forward``."""
+        stats = self.input_stats(filled, angvel, stats)
+        decoded = self.decoder(self.blstm(self.encoder(self.features(filled, mask, angvel, stats))))
+        return self.fill(filled, mask, decoded, stats["scale"])
 
     def predict_batch(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
-        return self(batch["filled"], batch["mask"], batch["angvel"])
+        return self(batch["filled"], batch["mask"], batch["angvel"], batch if "scale" in batch else None)
 
     def windowed(self, filled: torch.Tensor, mask: torch.Tensor, angvel: torch.Tensor) -> torch.Tensor:
-        codes = self.encoder(self.features(filled, mask, angvel))
-        return self.fill(filled, mask, self.decoder(self.blstm.windowed(codes, self.hparams.half)))
+        stats = self.input_stats(filled, angvel)
+        codes = self.encoder(self.features(filled, mask, angvel, stats))
+        return self.fill(filled, mask, self.decoder(self.blstm.windowed(codes, self.hparams.half)), stats["scale"])
 
     def loss_terms(self, batch: dict[str, torch.Tensor], pred: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Squared error over the missing samples only."""

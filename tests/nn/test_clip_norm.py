@@ -186,3 +186,31 @@ def test_norm_both_feeds_corpus_then_clip_inputs_and_cleans_offline_only(sample,
         EBFStream(both, sample.skeleton, sample.fps)
     with pytest.raises(ValueError, match="norm must be one of"):
         tiny("ebf-free", sample, norm="neither")
+
+
+@pytest.mark.parametrize("norm", ["clip", "both"])
+def test_ebd_takes_clip_statistics_and_keeps_observed_samples(sample, tiny, batch, norm):
+    """An EBD with ``norm`` clip or both: its input widens as EBF's does (plus the mask), the correction is in
+    units of the clip's scale, it trains on batches with clip statistics, and cleaning changes only missing
+    samples (sequence and windowed)."""
+    from mocapnet.nn.base import n_inputs
+
+    model = tiny("ebd", sample, norm=norm)
+    n = batch["filled"].shape[-1]
+    assert model.encoder[0].in_features == n_inputs(n, norm) + n
+    with torch.no_grad():
+        model.decoder[-1].bias.fill_(1.0)  # a correction of one scale everywhere
+    stats = clip_statistics(batch["filled"], batch["angvel"])
+    out = model.predict_batch(batch | stats)
+    torch.testing.assert_close(out[batch["mask"]], (batch["filled"] + stats["scale"])[batch["mask"]])
+    loss = model.training_step(batch | stats, 0)
+    loss.backward()  # the decoder's last layer starts at zero, so the first gradient reaches only it
+    assert torch.isfinite(loss) and model.decoder[-1].weight.grad.abs().sum() > 0
+    model.eval()
+    noisy = sample.channels.copy()
+    mask = np.zeros(noisy.shape, dtype=bool)
+    mask[200:230, scored_index(sample.skeleton)[:6]] = True
+    noisy[mask] = np.nan
+    for mode in ("sequence", "windowed"):
+        cleaned = clean_channels(model, noisy, mask, sample.skeleton, sample.fps, mode)
+        assert np.array_equal(cleaned[~mask], sample.channels[~mask]) and np.isfinite(cleaned).all()
