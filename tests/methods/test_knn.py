@@ -563,6 +563,20 @@ def test_pca_margin_error_is_pcas_own_error_at_rebuilding_the_limb_where_it_is_o
     assert np.isnan(pca_margin_error(pos, visible, grid, np.zeros_like(w), (90, 110)))
 
 
+def _gated_arm_case(parts):
+    """A left-arm:1 gap in ``parts[1]`` and a database holding the truth with the left arm's angles offset by
+    0.5° (the limb distance is above a tiny gate; the offset-corrected estimate is nearly the truth):
+    ``(noisy, mask, database, the pure kNN estimate)``."""
+    truth = parts[1]
+    noisy, mask = _segment_gap(truth, "segment-gap:left-arm:1", seed=4)
+    shifted = truth.channels.copy()
+    shifted[:, np.flatnonzero(mask.any(axis=0))] += 0.5
+    db = SkeletonDatabase.from_motions([parts[0], truth.with_channels(shifted), parts[2]])
+    db.names = ("part0", "the truth, offset", "part1800")
+    knn_only, _ = fill_angles(noisy, mask, db, WindowSettings(**{**_PLAIN, "speed": None}))
+    return noisy, mask, db, knn_only
+
+
 def test_gated_twist_keeps_the_pca_positions_and_takes_the_better_angles(parts) -> None:
     """A gated gap with ``gated_twist`` is the PCA fallback whose IK takes its twist and the angles positions do
     not set from the kNN estimate: the same joint and End Site positions as the gate's plain fallback (which
@@ -571,13 +585,8 @@ def test_gated_twist_keeps_the_pca_positions_and_takes_the_better_angles(parts) 
     left arm's angles offset by 0.5°: the limb distance is above the gate, and the offset-corrected estimate
     is nearly the truth."""
     truth = parts[1]
-    noisy, mask = _segment_gap(truth, "segment-gap:left-arm:1", seed=4)
     sk = truth.skeleton
-    shifted = truth.channels.copy()
-    shifted[:, np.flatnonzero(mask.any(axis=0))] += 0.5
-    db = SkeletonDatabase.from_motions([parts[0], truth.with_channels(shifted), parts[2]])
-    db.names = ("part0", "the truth, offset", "part1800")
-    knn_only, _ = fill_angles(noisy, mask, db, WindowSettings(**{**_PLAIN, "speed": None}))
+    noisy, mask, db, knn_only = _gated_arm_case(parts)
     gate = {**_PLAIN, "limb_gate": 1e-6, "twist": "knn"}
     plain, stats = fill_angles(noisy, mask, db, WindowSettings(**gate))
     kept, _ = fill_angles(noisy, mask, db, WindowSettings(**{**gate, "gated_twist": True}))
@@ -614,12 +623,7 @@ def test_short_chains_take_the_reference_angles_and_leave_the_other_positions(pa
     assert {"LeftHand", "LFingers", "LThumb", "LeftToeBase"} <= kept_joints and "LeftForeArm" not in kept_joints
     for j in range(1, sk.n_joints):  # whole subtrees: a kept joint's children are kept
         assert not chains[sk.joint_channels(sk.parents[j])].any() or chains[sk.joint_channels(j)].all()
-    noisy, mask = _segment_gap(truth, "segment-gap:left-arm:1", seed=4)
-    shifted = truth.channels.copy()
-    shifted[:, np.flatnonzero(mask.any(axis=0))] += 0.5
-    db = SkeletonDatabase.from_motions([parts[0], truth.with_channels(shifted), parts[2]])
-    db.names = ("part0", "the truth, offset", "part1800")
-    knn_only, _ = fill_angles(noisy, mask, db, WindowSettings(**{**_PLAIN, "speed": None}))
+    noisy, mask, db, knn_only = _gated_arm_case(parts)
     gate = {**_PLAIN, "limb_gate": 1e-6, "twist": "knn", "gated_twist": True}
     plain, _ = fill_angles(noisy, mask, db, WindowSettings(**gate))
     short, _ = fill_angles(noisy, mask, db, WindowSettings(**{**gate, "short_chain": 15.0}))
