@@ -36,6 +36,8 @@ def test_headline_is_the_harness_gap_error_and_ratios_use_the_better_reference()
     r = ratios({"gaps": [item]}, "good")
     assert r["gaps"] == pytest.approx(headline([item], "good") / 1.0)
     assert r["bin ≤ 5"] == pytest.approx(0.5) and r["bin 16–30"] == pytest.approx(3.0)
+    exact = FilledClip("b", item.truth, item.mask, 30.0, {n: item.truth for n in ("lerp", "spline", "good")})
+    assert ratios({"gaps": [exact]}, "good") == {}  # nothing to beat: no ratio rather than 0/0
 
 
 def test_select_ranks_near_ties_of_the_worst_ratio_by_the_mean():
@@ -56,3 +58,20 @@ def test_fill_clips_uses_protocol_seeds_and_scored_channels(cmu_short):
     scored = cmu_short.skeleton.scored_mask
     assert items[0].truth.shape == (600, int(scored.sum()))
     np.testing.assert_array_equal(items[0].mask, calls[0][:, scored])
+
+
+def test_compare_scores_each_network_blended_and_raw_and_selects_among_the_blended(cmu):
+    from mocapnet.evaluate.gap_bins import TUNE, compare, compare_markdown
+    from mocapnet.nn.checkpoints import shipped_checkpoint
+
+    path = str(shipped_checkpoint("ebd", cmu.skeleton))
+    result = compare("sample", [cmu], {"a": path, "b": path}, repeats=1)
+    assert set(result["scores"]) == {"a", "a raw", "b", "b raw"}
+    assert result["scores"]["a"] == result["scores"]["b"]  # the same network scores the same
+    assert result["scores"]["a"] != result["scores"]["a raw"]  # the blend is applied to one of them only
+    assert set(result["errors"]) == set(TUNE) and result["selected"] == "a"
+    # this clip's gaps-long hides only joints that never move: no ratio there, every other corruption has one
+    assert result["errors"]["gaps-long"]["lerp"] == 0.0
+    assert [k for k in TUNE if k in result["scores"]["a"]] == [k for k in TUNE if k != "gaps-long"]
+    result |= {"command": "x", "split": "sample"}
+    assert "| a raw |" in compare_markdown(result)

@@ -107,11 +107,17 @@ def bin_errors(items: Sequence[FilledClip], names: Sequence[str]) -> list[dict]:
 
 def ratios(filled: Mapping[str, Sequence[FilledClip]], name: str) -> dict[str, float]:
     """The selection score's ratios of ``name``: per corruption its headline ÷ the better of lerp's and
-    spline's, and per gap-length bin (gaps of every corruption pooled) its RMS ÷ the better of theirs."""
-    out = {c: headline(items, name) / min(headline(items, r) for r in REFERENCES) for c, items in filled.items()}
+    spline's, and per gap-length bin (gaps of every corruption pooled) its RMS ÷ the better of theirs. A
+    corruption or bin that both references fill exactly (hidden channels that never move) has no ratio."""
+    out = {}
+    for c, items in filled.items():
+        best = min(headline(items, r) for r in REFERENCES) if items else 0.0
+        if best > 0:
+            out[c] = headline(items, name) / best
     for row in bin_errors([it for items in filled.values() for it in items], [name, *REFERENCES]):
-        if row["gaps"]:
-            out[f"bin {row['bin']}"] = row[name] / min(row[r] for r in REFERENCES)
+        best = min(row[r] for r in REFERENCES)
+        if row["gaps"] and best > 0:
+            out[f"bin {row['bin']}"] = row[name] / best
     return out
 
 
@@ -205,6 +211,54 @@ def choose(scores: Mapping[str, Mapping[str, float]], fallbacks: Mapping[str, in
     check = max((k for k in checks if mean[k] <= 1.005 * mean["no check"]), key=fallbacks.get, default="no check")
     geometry = {k: v for k, v in scores.items() if k == "shipped" or k not in (*checks, "no check", "ebd-raw")}
     return {"selected": select(geometry), "check": check}
+
+
+def compare(corpus: str, clips: Sequence[Motion], checkpoints: Mapping[str, str], repeats: int) -> dict:
+    """EBD networks side by side on ``clips`` of ``corpus`` (a selection set: fold 1 or an unseen style), each as
+    ``ebd`` with the shipped blend (``GAP_BLEND`` and self-check) and raw: ``ratios`` over ``TUNE`` per label
+    (``LABEL`` and ``LABEL raw``), ``select``'s choice among the blended ones, and the headline gap errors."""
+    from mocapnet.methods.registry import build_method
+
+    fillers = {n: build_method(n).clean for n in REFERENCES}
+    for label, path in checkpoints.items():
+        fillers[label] = build_method(f"ebd={path}").clean
+        fillers[f"{label} raw"] = raw_filler(clips[0], path)
+    filled = {}
+    for c in TUNE:
+        filled[c] = fill_clips(corpus, clips, c, repeats, fillers)
+        print(corpus, c, {n: round(headline(filled[c], n), 3) for n in fillers}, flush=True)
+    scores = {n: ratios(filled, n) for n in fillers if n not in REFERENCES}
+    errors = {c: {n: headline(items, n) for n in fillers} for c, items in filled.items()}
+    n_clips = len({it.name for items in filled.values() for it in items})
+    return {
+        "scores": scores,
+        "errors": errors,
+        "selected": select({k: scores[k] for k in checkpoints}),
+        "clips": n_clips,
+        "repeats": repeats,
+        "checkpoints": dict(checkpoints),
+    }
+
+
+def compare_markdown(result: dict) -> str:
+    """``compare``'s result as Markdown tables."""
+    lines = [f"# EBD networks on {result['split']} ({result['clips']} clips × {result['repeats']} repeats)\n"]
+    lines += [
+        f"Command: `{result['command']}`; selected (smallest worst ratio of the blended ones): {result['selected']}\n",
+        "Ratio to the better of lerp and spline:\n",
+    ]
+    cols = list(next(iter(result["scores"].values())))
+    rows = []
+    for k, v in result["scores"].items():
+        rows.append([k, f"{max(v.values()):.3f}", f"{np.mean(list(v.values())):.3f}", *(f"{v[c]:.3f}" for c in cols)])
+    lines += markdown_table(["network", "worst", "mean", *cols], rows)
+    names = list(next(iter(result["errors"].values())))
+    lines += ["", "Gap error (°, mean over clips of each clip's RMS):", ""]
+    lines += markdown_table(
+        ["corruption", *names], ([c, *(f"{e[n]:.3f}" for n in names)] for c, e in result["errors"].items())
+    )
+    lines += ["", "Checkpoints: " + "; ".join(f"{k} = `{v}`" for k, v in result["checkpoints"].items())]
+    return "\n".join(lines) + "\n"
 
 
 def test(corpus: str, n_clips: int | None, repeats: int, checkpoint: str | None = None) -> dict:
