@@ -54,9 +54,18 @@ from collections.abc import Callable, Iterable
 from typing import Any
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from mocapnet.fill import runs
-from mocapnet.kinematics import inverse_kinematics, joint_positions, wrap_deg
+from mocapnet.kinematics import (
+    inverse_kinematics,
+    joint_positions,
+    local_rotations,
+    local_translations,
+    matrix_to_euler,
+    rotation_sequence,
+    wrap_deg,
+)
 from mocapnet.methods.baselines import lerp_fill
 from mocapnet.methods.knn_database import SkeletonDatabase, cached_database, default_corpus
 from mocapnet.methods.knn_window import (
@@ -146,21 +155,98 @@ def short_chains(skeleton: Skeleton, max_cm: float) -> np.ndarray:
     return out
 
 
+def twist_axes(skeleton: Skeleton, channels: np.ndarray) -> list[tuple[int, int]]:
+    """``(joint, child)`` for every joint whose only bone of non-zero length (local translations of
+    ``channels [T, C]`` at the first frame, End Site offsets; as ``inverse_kinematics`` counts them) leads to a
+    child joint: its twist about that bone moves no point. Context joints are left out (never filled)."""
+    context = set(skeleton.context_joints)
+    trans = local_translations(skeleton, channels[:1])[0]
+    out = []
+    for j in range(skeleton.n_joints):
+        bones = [c for c in skeleton.children[j] if np.linalg.norm(trans[c]) > 1e-9]
+        ends = [
+            e for e, p in enumerate(skeleton.end_parents) if p == j and np.linalg.norm(skeleton.end_sites[e]) > 1e-9
+        ]
+        if j not in context and len(bones) == 1 and not ends:
+            out.append((j, bones[0]))
+    return out
+
+
+def fit_twists(
+    skeleton: Skeleton, channels: np.ndarray, reference: np.ndarray, change: np.ndarray, own_weight: float
+) -> np.ndarray:
+    """``channels [T, C]`` (degrees) with each ``twist_axes`` joint turned about its bone, and its child turned
+    back, so that the child's local rotation comes nearest ``reference``'s (the elbow's or knee's bend in the
+    reference's plane), plus ``own_weight`` × the same for the joint's own local rotation. No joint or End
+    Site moves. Only frames where both joints' rotation channels are all in ``change [T, C]`` are touched,
+    parents first. With ``a`` the bone's unit vector in the joint's frame, the angle θ maximises
+    ``tr(Rot(a, θ)ᵀ M)`` with ``M = R_c R̂_cᵀ + w R_jᵀ R̂_j`` (R̂: the reference's local rotations):
+    ``θ = atan2(a · vee(M), tr M − aᵀ M a)``."""
+    out = channels.copy()
+    rot = local_rotations(skeleton, channels)
+    ref = local_rotations(skeleton, reference)
+    trans = local_translations(skeleton, channels)
+    for j, c in twist_axes(skeleton, channels):
+        seq_j, cols_j = rotation_sequence(skeleton, j)
+        seq_c, cols_c = rotation_sequence(skeleton, c)
+        if not seq_j or not seq_c:
+            continue
+        sel = np.flatnonzero(change[:, cols_j].all(axis=1) & change[:, cols_c].all(axis=1))
+        if not len(sel):
+            continue
+        axis = trans[sel, c] / np.linalg.norm(trans[sel, c], axis=1, keepdims=True)  # [S, 3]
+        r_j, r_c = rot[sel, j], rot[sel, c]
+        m = r_c @ np.swapaxes(ref[sel, c], 1, 2) + own_weight * np.swapaxes(r_j, 1, 2) @ ref[sel, j]
+        vee = np.stack([m[:, 2, 1] - m[:, 1, 2], m[:, 0, 2] - m[:, 2, 0], m[:, 1, 0] - m[:, 0, 1]], axis=1)
+        along = np.einsum("ti,tij,tj->t", axis, m, axis)
+        theta = np.arctan2((vee * axis).sum(1), np.trace(m, axis1=1, axis2=2) - along)
+        turn = Rotation.from_rotvec(theta[:, None] * axis).as_matrix()
+        rot[sel, j] = r_j @ turn
+        rot[sel, c] = np.swapaxes(turn, 1, 2) @ r_c
+        out[np.ix_(sel, cols_j)] = matrix_to_euler(rot[sel, j], seq_j, reference=channels[np.ix_(sel, cols_j)])
+        out[np.ix_(sel, cols_c)] = matrix_to_euler(rot[sel, c], seq_c, reference=channels[np.ix_(sel, cols_c)])
+    return out
+
+
 def pca_angles(
-    motion: Motion, mask: np.ndarray, base: np.ndarray, visible: np.ndarray, keep: np.ndarray | None = None
+    motion: Motion,
+    mask: np.ndarray,
+    base: np.ndarray,
+    visible: np.ndarray,
+    keep: np.ndarray | None = None,
+    fit_twist: float | None = None,
+    hidden: np.ndarray | None = None,
 ) -> np.ndarray:
     """``base [T, C]`` (degrees) with the masked samples replaced by the Gløersen & Federolf PCA fill of the
     joint and End Site positions (``visible [T, P]``), taken back to angles by ``inverse_kinematics`` (twist
     from ``base``); points PCA cannot rebuild keep ``base``'s positions, and channels ``keep [C]`` (whole
-    subtrees, ``short_chains``) keep ``base``'s angles."""
+    subtrees, ``short_chains``) keep ``base``'s angles. With ``hidden [T, P]`` (points also hidden, e.g.
+    ``own_hidden``), the positions are the mean of the two fills, with ``visible`` and with ``visible &
+    ~hidden``, where both rebuilt a point. With ``fit_twist`` (the weight of a joint's own reference),
+    ``fit_twists`` turns the joints with one bone about it towards ``base``'s bends."""
     ref = motion.with_channels(base)
     pos = joint_positions(ref, end_sites=True)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
         filled = pca_fill(np.where(visible[..., None], pos, np.nan), visible)
+        if hidden is not None and (visible & hidden).any():
+            fewer = visible & ~hidden
+            other = pca_fill(np.where(fewer[..., None], pos, np.nan), fewer)
+            filled = np.where(np.isfinite(filled), np.where(np.isfinite(other), (filled + other) / 2, filled), other)
     out = base.copy()
     change = mask if keep is None else mask & ~keep[None]
-    out[change] = inverse_kinematics(ref, np.where(np.isfinite(filled), filled, pos))[change]
+    ik = inverse_kinematics(ref, np.where(np.isfinite(filled), filled, pos))
+    if fit_twist is not None:
+        ik = fit_twists(motion.skeleton, ik, base, change, fit_twist)
+    out[change] = ik[change]
+    return out
+
+
+def own_hidden(skeleton: Skeleton, joint_missing: np.ndarray) -> np.ndarray:
+    """``[T, P]``: the joints whose own rotation is missing (their positions are known where
+    ``points_visible`` says so: the ``pca`` baseline of ``harness.evaluate_angles`` hides them anyway)."""
+    out = np.zeros((len(joint_missing), len(point_parents(skeleton))), dtype=bool)
+    out[:, : skeleton.n_joints] = joint_missing
     return out
 
 
@@ -299,7 +385,8 @@ def fill_angles(
                     twist[t, c] = e if settings.twist == "knn" else base[t, c] + bt * (e - base[t, c])
     if settings.fallback == "pca":
         keep = None if settings.short_chain is None else short_chains(sk, settings.short_chain)
-        anchor = pca_angles(motion, mask, twist, visible, keep)
+        hidden = own_hidden(sk, joint_missing) if settings.pca_pair else None
+        anchor = pca_angles(motion, mask, twist, visible, keep, settings.fit_twist, hidden)
     else:
         anchor = base
     a, b, e = anchor[filled], beta[filled], est[filled]

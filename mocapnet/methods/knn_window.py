@@ -160,7 +160,12 @@ class WindowSettings:
     (``knn_angles.short_chains``; None: never); ``pca_gate`` (joint space): a gap whose limb
     distance exceeds this many times PCA's own error at rebuilding the limb in the window's margins
     (``knn_angles.pca_margin_error``, cm) takes the fallback only: PCA is used where it reconstructs the
-    observed margins better than the neighbours match them (None: never)."""
+    observed margins better than the neighbours match them (None: never); ``fit_twist`` (joint space, fallback
+    ``pca``): the fallback turns each joint with one bone about it (the upper arm, the thigh) so that its child's
+    local rotation (the elbow's, the knee's) comes nearest the twist reference's, plus this weight times the same
+    for the joint's own; no point moves (``knn_angles.fit_twists``; None: never); ``pca_pair`` (joint space):
+    the fallback's positions are the mean of two PCA fills, with every known point and with the joints whose own
+    rotation is missing hidden too, as the ``pca`` baseline does (``knn_angles.own_hidden``)."""
 
     k: int = 16
     margin_s: float = 0.3
@@ -180,22 +185,29 @@ class WindowSettings:
     gated_twist: bool = False
     short_chain: float | None = None
     pca_gate: float | None = None
+    fit_twist: float | None = None
+    pca_pair: bool = False
 
     def __post_init__(self) -> None:
         gates = (self.plateau_s, self.limb_gate, self.still_gate, self.short_chain, self.pca_gate)
-        flags = (self.offset, self.own, self.limb_distance, self.gated_twist)
+        flags = (self.offset, self.own, self.limb_distance, self.gated_twist, self.pca_pair)
         if not all(isinstance(v, bool) for v in flags):
-            raise ValueError(f"knn: offset, own, limb_distance and gated_twist must be true or false; got {self}")
-        if not all(v is None or (isinstance(v, (int, float)) and not isinstance(v, bool)) for v in gates):
             raise ValueError(
-                f"knn: plateau_s, limb_gate, still_gate, short_chain and pca_gate must be numbers or none; got {self}"
+                f"knn: offset, own, limb_distance, gated_twist and pca_pair must be true or false; got {self}"
             )
-        positive = all(v is None or v > 0 for v in gates)
+        if not all(
+            v is None or (isinstance(v, (int, float)) and not isinstance(v, bool)) for v in (*gates, self.fit_twist)
+        ):
+            raise ValueError(
+                "knn: plateau_s, limb_gate, still_gate, short_chain, pca_gate and fit_twist must be numbers or none; "
+                f"got {self}"
+            )
+        positive = all(v is None or v > 0 for v in gates) and (self.fit_twist is None or self.fit_twist >= 0)
         choices = self.fallback in ("lerp", "pca") and self.twist in ("lerp", "knn", "blend")
         if self.k < 1 or not 0.0 <= self.max_weight <= 1.0 or not choices or not positive:
             raise ValueError(
                 "knn: k must be >= 1, max_weight in [0, 1], fallback lerp or pca, twist lerp, knn or blend, "
-                f"plateau_s, limb_gate, still_gate, short_chain and pca_gate > 0; got {self}"
+                f"plateau_s, limb_gate, still_gate, short_chain and pca_gate > 0, fit_twist >= 0; got {self}"
             )
 
 

@@ -8,12 +8,22 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from mocapnet.corpus import PACKAGE_DATA, list_bvh
 from mocapnet.corrupt import corrupt_markers, corrupt_motion, motion_markers
 from mocapnet.io.bvh import read_bvh, write_bvh
 from mocapnet.io.c3d import read_c3d
-from mocapnet.kinematics import geodesic_deg, joint_positions, local_rotations, wrap_deg
+from mocapnet.kinematics import (
+    geodesic_deg,
+    inverse_kinematics,
+    joint_positions,
+    local_rotations,
+    local_translations,
+    matrix_to_euler,
+    rotation_sequence,
+    wrap_deg,
+)
 from mocapnet.methods import MethodContext, build_method
 from mocapnet.methods.baselines import lerp_fill
 from mocapnet.methods.knn import (
@@ -34,13 +44,16 @@ from mocapnet.methods.knn import (
 from mocapnet.methods.knn_angles import (
     ANGLE_DEFAULTS,
     fill_angles,
+    fit_twists,
     limb_motion,
     limb_rms,
+    own_hidden,
     pca_angles,
     pca_margin_error,
     point_parents,
     points_visible,
     short_chains,
+    twist_axes,
 )
 from mocapnet.methods.knn_database import SkeletonDatabase, cached_database, default_corpus
 from mocapnet.methods.knn_window import Searcher, WindowSettings, estimate_run
@@ -440,11 +453,13 @@ def test_max_weight_caps_the_knn_share_and_bad_settings_are_refused() -> None:
         {"twist": "x"},
         {"short_chain": 0.0},
         {"pca_gate": 0.0},
+        {"fit_twist": -0.5},
     )
     for bad in bad_settings:
         with pytest.raises(ValueError, match="knn: k must be"):
             WindowSettings(**bad)
-    for bad in ({"gated_twist": "false"}, {"offset": 1}, {"short_chain": "none"}, {"pca_gate": True}):
+    flags = ({"gated_twist": "false"}, {"offset": 1}, {"short_chain": "none"}, {"pca_gate": True}, {"pca_pair": "1"})
+    for bad in (*flags, {"fit_twist": "0"}):
         with pytest.raises(ValueError, match="knn: .* must be"):  # a misspelt flag or gate is not taken as set
             WindowSettings(**bad)
 
@@ -635,3 +650,105 @@ def test_short_chains_take_the_reference_angles_and_leave_the_other_positions(pa
     still = [i for i, p in enumerate(point_parents(sk)) if p < 0 or not chains[sk.joint_channels(p)].any()]
     assert np.abs(pos[0][:, still] - pos[1][:, still]).max() < 1e-6  # only points hanging from kept joints move
     assert _gap_rms(short, truth.channels, mask) < 0.75 * _gap_rms(plain, truth.channels, mask)
+
+
+def _turn_about_bone(motion: Motion, joint: int, child: int, theta: np.ndarray) -> np.ndarray:
+    """Channels of ``motion`` with ``joint`` turned by ``theta [T]`` (rad) about its bone to ``child`` and
+    ``child`` turned back: every point stays where it was."""
+    sk = motion.skeleton
+    rot = local_rotations(sk, motion.channels)
+    axis = local_translations(sk, motion.channels)[:, child]
+    axis /= np.linalg.norm(axis, axis=1, keepdims=True)
+    turn = Rotation.from_rotvec(theta[:, None] * axis).as_matrix()
+    out = motion.channels.copy()
+    for j, r in ((joint, rot[:, joint] @ turn), (child, np.swapaxes(turn, 1, 2) @ rot[:, child])):
+        seq, cols = rotation_sequence(sk, j)
+        out[:, cols] = matrix_to_euler(r, seq, reference=motion.channels[:, cols])
+    return out
+
+
+def test_fit_twists_turns_the_bone_back_to_the_references_bend_and_moves_no_point(parts) -> None:
+    """``fit_twists`` only turns a joint with one bone about it (child turned back): no point moves. The upper
+    arm of the truth turned by up to 60° about its bone (the elbow's local rotation turned back) is found again
+    from the truth as the reference, with or without the joint's own term; with another reference, θ is the
+    best of a fine grid of turns; channels outside ``change`` are never touched."""
+    truth = parts[1]
+    sk = truth.skeleton
+    arm, fore = sk.names.index("LeftArm"), sk.names.index("LeftForeArm")
+    assert (arm, fore) in twist_axes(sk, truth.channels)
+    assert sk.names.index("LeftHand") not in {j for j, _ in twist_axes(sk, truth.channels)}  # several fingers
+    turned = _turn_about_bone(truth, arm, fore, np.radians(60.0) * np.sin(np.arange(truth.n_frames) / 20.0))
+    pos = joint_positions(truth, end_sites=True)
+    assert np.abs(joint_positions(truth, turned, end_sites=True) - pos).max() < 1e-6  # cm
+    assert np.abs(wrap_deg(turned - truth.channels)).max() > 30.0
+    change = np.zeros(truth.channels.shape, dtype=bool)
+    change[100:300, np.concatenate([rotation_sequence(sk, j)[1] for j in (arm, fore)])] = True
+    for own in (0.0, 1.0):
+        out = fit_twists(sk, turned, truth.channels, change, own)
+        assert np.abs(wrap_deg(out - truth.channels))[change].max() < 1e-6
+        assert np.array_equal(out[~change], turned[~change])
+        assert np.abs(joint_positions(truth, out, end_sites=True) - pos).max() < 1e-6
+    other = truth.channels + np.random.default_rng(1).normal(0.0, 10.0, truth.channels.shape) * sk.scored_mask
+    for own in (0.0, 0.5):
+        out = fit_twists(sk, turned, other, change, own)
+        rot, ref, got = (local_rotations(sk, c)[150] for c in (turned, other, out))
+        axis = local_translations(sk, turned)[150, fore] / np.linalg.norm(local_translations(sk, turned)[150, fore])
+        grid = Rotation.from_rotvec(np.linspace(-np.pi, np.pi, 3601)[:, None] * axis).as_matrix()
+        r_j, r_c = (
+            np.concatenate([rot[arm] @ grid, got[arm][None]]),
+            np.concatenate([np.swapaxes(grid, 1, 2) @ rot[fore], got[fore][None]]),
+        )
+        value = (ref[fore] * r_c).sum(axis=(1, 2)) + own * (ref[arm] * r_j).sum(axis=(1, 2))  # tr(R̂ᵀ R) terms
+        assert value[:-1].max() - 1e-12 <= value[-1] <= value[:-1].max() + 1e-5  # the grid steps 0.1°
+
+
+def test_fit_twist_moves_no_point_of_the_fallback_and_turns_it_towards_the_reference(parts) -> None:
+    """``fit_twist`` in a gated gap: the PCA fallback turned by ``fit_twists`` towards the twist reference (the
+    kNN estimate, ``twist="knn"``): its joint and End Site positions stay as they were, the upper arm's and
+    forearm's angles change; observed samples stay as they were."""
+    truth = parts[1]
+    sk = truth.skeleton
+    noisy, mask, db, knn_only = _gated_arm_case(parts)
+    gate = {**_PLAIN, "limb_gate": 1e-6, "twist": "knn", "gated_twist": True}
+    plain, _ = fill_angles(noisy, mask, db, WindowSettings(**gate))
+    for own in (0.0, 1.0):
+        fitted, _ = fill_angles(noisy, mask, db, WindowSettings(**{**gate, "fit_twist": own}))
+        assert np.array_equal(fitted[~mask], noisy.channels[~mask])
+        want = fit_twists(sk, plain, knn_only, mask & sk.scored_mask[None], own)
+        assert np.allclose(fitted[mask], want[mask], atol=1e-9)
+        pos = [joint_positions(noisy.with_channels(c), end_sites=True) for c in (plain, fitted)]
+        assert np.abs(pos[0] - pos[1]).max() < 1e-6  # cm
+        for j in (sk.names.index("LeftArm"), sk.names.index("LeftForeArm")):
+            cols = sk.joint_channels(j)
+            assert np.abs(wrap_deg(fitted - plain))[:, cols][mask[:, cols]].max() > 1.0
+
+
+def test_pca_pair_is_the_mean_of_the_two_pca_fills(parts) -> None:
+    """``pca_pair``: the fallback's positions are the mean of the PCA fill with every known point and the fill
+    with the joints whose own rotation is missing hidden too (the ``pca`` baseline's view); the two differ, so
+    the mean differs from either; observed samples stay as they were, and the fill is exact with the truth in
+    the database."""
+    truth = parts[1]
+    sk = truth.skeleton
+    noisy, mask = _segment_gap(truth, "segment-gap:left-arm:1", seed=4)
+    joint_missing = np.stack([mask[:, sk.joint_channels(j)].any(axis=1) for j in range(sk.n_joints)], axis=1)
+    visible = points_visible(sk, joint_missing)
+    hidden = own_hidden(sk, joint_missing)
+    assert (visible & hidden).any()  # the upper arm's position is known, and hidden in the second view
+    lerp = lerp_fill(noisy.channels, mask)
+    pos = joint_positions(noisy.with_channels(lerp), end_sites=True)
+    fills = [pca_fill(np.where(v[..., None], pos, np.nan), v) for v in (visible, visible & ~hidden)]
+    assert np.nanmax(np.abs(fills[0] - fills[1])) > 0.1  # cm
+    want = inverse_kinematics(noisy.with_channels(lerp), (fills[0] + fills[1]) / 2)
+    got = pca_angles(noisy, mask, lerp, visible, hidden=hidden)
+    assert np.allclose(got[mask], want[mask], atol=1e-9) and np.array_equal(got[~mask], lerp[~mask])
+    single = pca_angles(noisy, mask, lerp, visible)
+    assert np.abs(wrap_deg(got - single))[mask].max() > 0.1
+    other = SkeletonDatabase.from_motions([parts[0], parts[2]])
+    gated, _ = fill_angles(noisy, mask, other, WindowSettings(**{**_PLAIN, "limb_gate": 1e-6, "pca_pair": True}))
+    assert np.allclose(gated[mask], got[mask], atol=1e-9) and np.array_equal(gated[~mask], noisy.channels[~mask])
+    db = SkeletonDatabase.from_motions([parts[0], truth.with_channels(truth.channels), parts[2]])
+    db.names = ("part0", "copy of the truth", "part1800")
+    for extra in ({"pca_pair": True}, {"fit_twist": 0.0}, {"fit_twist": 1.0, "pca_pair": True, "pca_gate": 1.0}):
+        out, _ = fill_angles(noisy, mask, db, WindowSettings(**{**ANGLE_DEFAULTS, **extra}))
+        assert _gap_rms(out, truth.channels, mask) < 1e-3
