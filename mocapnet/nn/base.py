@@ -61,6 +61,22 @@ def clip_statistics(filled: torch.Tensor, angvel: torch.Tensor) -> dict[str, tor
     return {"center": center, "scale": scale, "angvel_scale": angvel_scale}
 
 
+def input_features_numpy(
+    filled: np.ndarray,
+    angvel: np.ndarray,
+    stats: tuple[np.ndarray, np.ndarray, np.ndarray],
+    corpus: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+) -> np.ndarray:
+    """Numpy twin of ``CleanerModule.input_features`` without a mask (the streaming kernels): scored channels
+    ``[N, C]`` (degrees) and root angular velocity ``[N, 3]`` (rad/s) → ``[N, n_inputs(C, norm)]`` float32,
+    normalised with ``stats`` = ``(center [C], scale [C], angvel_scale [3])`` after the same with ``corpus``
+    (the corpus buffers, for ``norm="both"``) when given."""
+    parts = []
+    for center, scale, angvel_scale in ([] if corpus is None else [corpus]) + [stats]:
+        parts += [np.clip(wrap_deg(filled - center) / scale, -8.0, 8.0), np.clip(angvel / angvel_scale, -8.0, 8.0)]
+    return np.concatenate(parts, axis=-1).astype(np.float32)
+
+
 class CleanerModule(L.LightningModule, ABC):
     """Base LightningModule. Subclasses set ``val_metric`` (the logged name), implement ``forward`` (sequence
     mode), ``windowed`` and ``loss_terms``."""

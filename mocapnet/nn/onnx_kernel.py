@@ -13,6 +13,7 @@ import importlib.util
 import numpy as np
 import torch
 
+from mocapnet.nn.base import NORM_KEYS
 from mocapnet.nn.ebf import EBF
 from mocapnet.nn.layers import dense_layers
 
@@ -43,7 +44,8 @@ def _lstm_params(lstm: torch.nn.LSTM, layer: int, directions: tuple[str, ...]) -
 class OnnxKernel:
     """The centre frame of a full window through ONNX Runtime (one thread, the caller's): ``centre(window,
     angvel, stats)`` with scored channels ``[W, C]`` (degrees), root angular velocity ``[W, 3]`` (rad/s) and
-    ``(center [C], scale [C], angvel_scale [3])`` → cleaned channels ``[C]`` (float32)."""
+    ``(center [C], scale [C], angvel_scale [3])`` → cleaned channels ``[C]`` (float32). A ``norm="both"``
+    network's corpus statistics are constants of the graph; ``stats`` normalise its clip-normalised inputs."""
 
     def __init__(self, model: EBF) -> None:
         import onnx
@@ -72,17 +74,28 @@ class OnnxKernel:
                     x = node("Tanh", [x], f"{prefix}{i}_tanh")
             return x
 
-        # normalisation (base.normalise, angvel_features): wrap(x - center) / scale, clipped at ±8
-        d = node("Add", [node("Sub", ["window", "center"], "d0"), const("c180", 180.0)], "d1")
-        d = node(
-            "Sub",
-            [d, node("Mul", [node("Floor", [node("Div", [d, const("c360", 360.0)], "d2")], "d3"), "c360"], "d4")],
-            "d5",
-        )
-        x = node("Div", [node("Sub", [d, "c180"], "d6"), "scale"], "x0")
-        x = node("Clip", [x, const("lo", -8.0), const("hi", 8.0)], "x1")
-        w = node("Clip", [node("Div", ["angvel", "angvel_scale"], "w0"), "lo", "hi"], "w1")
-        code = dense(node("Concat", [x, w], "feat", axis=1), model.encoder, "enc")
+        def normalised(center: str, scale: str, angvel_scale: str, p: str) -> list[str]:
+            """``base.normalise`` and ``angvel_features`` of the window: wrap(x - center) / scale and angvel /
+            angvel_scale, clipped at ±8 (``p``: prefix of the node names)."""
+            d = node("Add", [node("Sub", ["window", center], f"{p}d0"), "c180"], f"{p}d1")
+            d = node(
+                "Sub",
+                [d, node("Mul", [node("Floor", [node("Div", [d, "c360"], f"{p}d2")], f"{p}d3"), "c360"], f"{p}d4")],
+                f"{p}d5",
+            )
+            x = node("Div", [node("Sub", [d, "c180"], f"{p}d6"), scale], f"{p}x0")
+            x = node("Clip", [x, "lo", "hi"], f"{p}x1")
+            return [x, node("Clip", [node("Div", ["angvel", angvel_scale], f"{p}w0"), "lo", "hi"], f"{p}w1")]
+
+        for name, value in (("c180", 180.0), ("c360", 360.0), ("lo", -8.0), ("hi", 8.0)):
+            const(name, value)
+        # base.input_features: the window normalised with the given statistics, after the same with the
+        # corpus buffers for norm="both"
+        features = normalised("center", "scale", "angvel_scale", "")
+        if hp.get("norm", "corpus") == "both":
+            corpus = [const(f"corpus_{key}", getattr(model, key).numpy()) for key in NORM_KEYS]
+            features = normalised(*corpus, "corpus_") + features
+        code = dense(node("Concat", features, "feat", axis=1), model.encoder, "enc")
         code = node("Unsqueeze", [code, const("ax1", np.array([1]))], "code")  # [W, 1, F]
         names = [const(f"l0_{k}", v) for k, v in zip("wrb", _lstm_params(lstm, 0, ("", "_reverse")))]
         y = node("LSTM", [code, *names], "y1", hidden_size=hid, direction="bidirectional")  # [W, 2, 1, H]

@@ -1,7 +1,7 @@
 """Frame-by-frame EBF cleaning with a fixed lookahead (windowed mode, ``mocapnet.nn.infer``): ``EBFStream`` (and
 ``EBFStreams``, several streams in lockstep), the numpy kernel of its steady state (``_CentreKernel``; the ONNX
-Runtime one is ``onnx_kernel``), the running input statistics of a clip-normalised network (``RunningStats``)
-and the causal self-check (``RunningSelfCheck``).
+Runtime one is ``onnx_kernel``), the running input statistics of a ``norm="clip"`` or ``"both"`` network
+(``RunningStats``) and the causal self-check (``RunningSelfCheck``).
 
 The steady state costs one windowed-mode output per frame: 47 sequential LSTM steps (layer 1 over the 31-frame
 window, both directions at once; layer 2 over the 16 steps its centre output depends on, both directions at
@@ -18,7 +18,7 @@ import torch
 from mocapnet.kinematics import wrap_deg, wrap_near
 from mocapnet.motion import Skeleton
 from mocapnet.nn import onnx_kernel
-from mocapnet.nn.base import NORM_KEYS, uses_clip_statistics
+from mocapnet.nn.base import NORM_KEYS, input_features_numpy, uses_clip_statistics
 from mocapnet.nn.ebf import EBF
 from mocapnet.nn.features import (
     MIN_SCALE_DEG,
@@ -81,6 +81,7 @@ class _CentreKernel:
         self.half, self.n_channels, self.n_filter = hp.half, hp.n_channels, model.n_filter
         self.free, self.has_bias = hp.filter_shape == "free", bool(hp.bias)
         self.bias_bound = float(hp.get("bias_bound", 3.0))
+        self.corpus = _corpus_statistics(model) if hp.get("norm", "corpus") == "both" else None
         self.taps_sq = (np.arange(-self.half, self.half + 1, dtype=np.float32) ** 2)[None, None, :]
         self._half = np.array(0.5, dtype=np.float32)
         self._buffers: dict[int, dict] = {}
@@ -132,11 +133,9 @@ class _CentreKernel:
     ) -> np.ndarray:
         """Layer-1 LSTM input projections ``[N, 4, 2, H]`` (gate, direction; biases included) of frames with
         scored channels ``[N, C]`` (degrees) and root angular velocity ``[N, 3]`` (rad/s), normalised with
-        ``stats`` = ``(center [C], scale [C], angvel_scale [3])`` (float32)."""
-        center, scale, angvel_scale = stats
-        x = np.clip(wrap_deg(scored - center) / scale, -8.0, 8.0)
-        w = np.clip(angvel / angvel_scale, -8.0, 8.0)
-        code = _run_dense(self.encoder, np.concatenate([x, w], axis=1).astype(np.float32))  # [N, F]
+        ``stats`` = ``(center [C], scale [C], angvel_scale [3])`` (float32; beside the corpus buffers for
+        ``norm="both"``)."""
+        code = _run_dense(self.encoder, input_features_numpy(scored, angvel, stats, self.corpus))  # [N, F]
         out = code @ self.wih0_t
         out += self.bias0
         return out.reshape(len(out), 4, 2, self.hidden)
@@ -194,6 +193,11 @@ class _CentreKernel:
             bound = self.bias_bound
             values = values - scale * bound * np.tanh(params[:, self.n_filter :] / bound)
         return values
+
+
+def _corpus_statistics(model: EBF) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``model``'s corpus buffers as numpy ``(center [C], scale [C], angvel_scale [3])`` (float32)."""
+    return tuple(getattr(model, key).numpy() for key in NORM_KEYS)
 
 
 def _run_dense(layers: list[tuple[np.ndarray, np.ndarray, bool]], x: np.ndarray) -> np.ndarray:
@@ -359,8 +363,10 @@ class EBFStream:
     ``change_limit``: the self-check factor (None: the checkpoint's ``change_limit``; 0: none), applied causally
     (``RunningSelfCheck``). Without it (or on a stream shorter than one window) a ``norm="corpus"`` network
     gives exactly ``clean_channels(..., mode="windowed")`` on the whole clip. A
-    ``norm="clip"`` network needs the clip's statistics: ``stats`` (``(center [C_s], scale [C_s],
-    angvel_scale [3])``, e.g. ``clip_statistics`` of a calibration take) fixes them, and then the stream equals
+    ``norm="clip"`` network needs the clip's statistics, and so does a ``norm="both"`` one for its
+    clip-normalised inputs (its corpus-normalised ones beside them use the model's buffers, as offline): ``stats``
+    (``(center [C_s], scale [C_s], angvel_scale [3])``, e.g. ``clip_statistics`` of a calibration take; also the
+    unit of the bias, as offline) fixes them, and then the stream equals
     windowed mode given the same statistics; without them the stream uses those of what it has seen so far
     (``RunningStats``, refreshed on ``_stats_due`` frames; the flush refreshes them with every frame; the ONNX
     kernel normalises the whole window with the current statistics at every frame, the numpy kernel keeps each
@@ -380,11 +386,6 @@ class EBFStream:
             raise TypeError("EBFStream streams EBF (and BF) models")
         if backend not in BACKENDS:
             raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
-        if model.hparams.get("norm", "corpus") not in ("corpus", "clip"):
-            raise ValueError(
-                f"EBFStream: no streaming kernel for norm={model.hparams.norm!r} networks; clean offline "
-                "(mocapnet clean, clean_channels) or use a norm='corpus' or 'clip' network"
-            )
         if backend == "onnx" and not onnx_kernel.available():
             raise ValueError("backend='onnx' needs the optional packages onnx and onnxruntime (mocapnet[onnx])")
         check_skeleton(model, skeleton, fps=fps)
@@ -416,8 +417,7 @@ class EBFStream:
             self._proj = _Ring(width, (4, 2, self._kernel.hidden), np.float32)
         clip_norm = uses_clip_statistics(model)
         self.running = RunningStats(len(self.idx)) if clip_norm and stats is None else None
-        fixed = (model.center.numpy(), model.scale.numpy(), model.angvel_scale.numpy())
-        self._set_stats(stats if clip_norm and stats is not None else fixed)
+        self._set_stats(stats if clip_norm and stats is not None else _corpus_statistics(model))
         limit = float(model.hparams.get("change_limit", 0.0)) if change_limit is None else change_limit
         if limit < 0:
             raise ValueError(f"change_limit must be >= 0, got {limit}")

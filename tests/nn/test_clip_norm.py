@@ -158,11 +158,10 @@ def test_wrap_deg_is_the_same_formula_on_tensors_and_arrays():
     np.testing.assert_array_equal(t.numpy(), (torch.remainder(torch.from_numpy(x) + 180.0, 360.0) - 180.0).numpy())
 
 
-def test_norm_both_feeds_corpus_then_clip_inputs_and_cleans_offline_only(sample, tiny, batch, tmp_path):
+def test_norm_both_feeds_corpus_then_clip_inputs_and_cleans(sample, tiny, batch, tmp_path):
     """``norm="both"``: the encoder input is the corpus-normalised features followed by the clip-normalised ones;
-    it trains on batches with clip statistics, cleans a clip offline in both modes, and streaming refuses it."""
+    it trains on batches with clip statistics and cleans a clip offline in both modes (streaming: test_stream.py)."""
     from mocapnet.nn.base import n_inputs
-    from mocapnet.nn.stream import EBFStream
 
     both = tiny("ebf-free", sample, norm="both").eval()
     corpus, clip = tiny("ebf-free", sample), tiny("ebf-free", sample, norm="clip")
@@ -182,8 +181,6 @@ def test_norm_both_feeds_corpus_then_clip_inputs_and_cleans_offline_only(sample,
     for mode in ("sequence", "windowed"):
         out = clean_channels(both, noisy, mask, sample.skeleton, sample.fps, mode)
         assert out.shape == noisy.shape and np.isfinite(out).all()
-    with pytest.raises(ValueError, match="no streaming kernel for norm='both'"):
-        EBFStream(both, sample.skeleton, sample.fps)
     with pytest.raises(ValueError, match="norm must be one of"):
         tiny("ebf-free", sample, norm="neither")
 

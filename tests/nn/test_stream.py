@@ -73,8 +73,11 @@ def test_shipped_ebf_streams_as_windowed_mode(backend, sample):
 
 @pytest.mark.parametrize("backend", BACKENDS)
 @pytest.mark.parametrize("length", [20, 80])
-def test_stream_with_fixed_statistics_matches_windowed_mode(length, backend, sample, tiny):
-    model = _varied(tiny("ebf-free", sample, norm="clip"))
+@pytest.mark.parametrize("kind, norm", [("ebf-free", "clip"), ("ebf-free", "both"), ("ebf-bias", "both")])
+def test_stream_with_fixed_statistics_matches_windowed_mode(kind, norm, length, backend, sample, tiny):
+    """Given the whole clip's statistics, a clip-normalised stream (``norm="both"``: beside the corpus-normalised
+    inputs; the bias in the clip's scales) is windowed mode on the whole clip."""
+    model = _varied(tiny(kind, sample, norm=norm))
     clip = sample.channels[300 : 300 + length]
     stats = _clip_stats(clip, sample)
     got = _run(EBFStream(model, sample.skeleton, sample.fps, stats=stats, backend=backend), clip)
@@ -83,11 +86,12 @@ def test_stream_with_fixed_statistics_matches_windowed_mode(length, backend, sam
 
 
 @pytest.mark.parametrize("backend", BACKENDS)
-def test_stream_with_running_statistics(backend, sample, tiny):
+@pytest.mark.parametrize("norm", ["clip", "both"])
+def test_stream_with_running_statistics(norm, backend, sample, tiny):
     """Without given statistics the stream uses those of what it has seen: on a stream no longer than one
     window every frame comes out at the flush, with the whole clip's statistics (= windowed mode); on a longer
     one the early frames differ (fewer frames seen) but stay close."""
-    model = _varied(tiny("ebf-free", sample, norm="clip"))
+    model = _varied(tiny("ebf-free", sample, norm=norm))
     for length, tol in ((25, 1e-3), (200, None)):
         clip = sample.channels[300 : 300 + length]
         expected = _windowed(model, clip, sample)
@@ -99,6 +103,25 @@ def test_stream_with_running_statistics(backend, sample, tiny):
             idx = scored_index(sample.skeleton)
             spread = np.abs(clip[:, idx] - clip[:, idx].mean(0)).max()
             assert np.abs(got - expected).max() < 0.5 * spread
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+@pytest.mark.parametrize("norm", ["clip", "both"])
+def test_kernel_follows_the_running_statistics(norm, backend, sample, tiny):
+    """With running statistics the kernel's centre frame is the torch modules' on the same window and
+    statistics: at every frame for ONNX Runtime (it normalises the whole window each time), at every refresh
+    for numpy (which recomputes the window's layer-1 inputs then)."""
+    model = _varied(tiny("ebf-free", sample, norm=norm))
+    stream = EBFStream(model, sample.skeleton, sample.fps, backend=backend)
+    compared = 0
+    clip = _noisy(sample, 300, 130)
+    clip[:, scored_index(sample.skeleton)] += np.linspace(0.0, 40.0, len(clip))[:, None]  # statistics that drift
+    for frame in clip:
+        got = stream.push(frame)
+        if stream.count > stream.width and (backend == "onnx" or _stats_due(stream.count, stream.width)):
+            np.testing.assert_allclose(got[0][1], stream._emit([stream.half])[0][1], atol=1e-4)
+            compared += 1
+    assert compared == (130 - stream.width if backend == "onnx" else 2)  # numpy: the refreshes at 62 and 124
 
 
 def test_running_statistics_and_refresh_schedule(sample):
@@ -116,13 +139,13 @@ def test_running_statistics_and_refresh_schedule(sample):
     assert due == [31, 62, 124, 248, 496, 992, 1024, 2048]
 
 
-@pytest.mark.parametrize("kind, norm", [("ebf-free", "corpus"), ("ebf-bias", "clip")])
+@pytest.mark.parametrize("kind, norm", [("ebf-free", "corpus"), ("ebf-bias", "clip"), ("ebf-bias", "both")])
 def test_streams_in_lockstep_equal_separate_streams(kind, norm, sample, tiny):
     """Three clips through one ``EBFStreams`` give what three ``EBFStream`` s give; with a clip-normalised
     bias network each stream keeps its own statistics (and bias unit)."""
     model = _varied(tiny(kind, sample, norm=norm))
     clips = [sample.channels[s : s + 70] for s in (0, 900, 2000)]
-    stats = [_clip_stats(c, sample) for c in clips] if norm == "clip" else None
+    stats = [_clip_stats(c, sample) for c in clips] if norm != "corpus" else None
     streams = EBFStreams(model, sample.skeleton, sample.fps, len(clips), stats)
     together: list[list] = [[] for _ in clips]
     for frames in zip(*clips):
