@@ -2,7 +2,7 @@
 (bandai2 and bandai1 fold 0, database bandai2), C3D whole-segment gaps, fill time per second of gap; the
 work is in ``mocapnet.evaluate.knn_bench``. Writes ``benchmarks/results/knn.md`` and ``knn.json.gz``;
 ``--tune`` scores setting variations on bandai2 fold 1 only and writes ``knn_tuning.md`` / ``.json.gz``
-(``--grid plateau|twist|gate|still|fallback|pcagate|forearm``: later rounds, ``knn_tuning_<grid>.md``).
+(``--grid plateau|twist|gate|still|fallback|pcagate|forearm|pair``: later rounds, ``knn_tuning_<grid>.md``).
 
     nice -n 5 .venv/bin/python scripts/bench_knn.py --tune     # bandai2 fold 1 only
     nice -n 5 .venv/bin/python scripts/bench_knn.py            # the benchmark

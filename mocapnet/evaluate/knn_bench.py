@@ -136,6 +136,17 @@ FOREARM_VARIANTS: tuple[dict, ...] = (
     {"short_chain": 25.0},
     {"short_chain": 25.0, "pca_gate": 3.0},
 )
+# Sixth session, round H (``--tune --grid pair``): the fallback's positions as the mean of two PCA fills
+# (``pca_pair``: every known point, and the ``pca`` baseline's view), its upper arms and thighs turned about their
+# bones towards the reference's elbow and knee (``fit_twist``, no point moves), and with them ``pca_gate`` again.
+PAIR_VARIANTS: tuple[dict, ...] = (
+    {},
+    {"pca_pair": True},
+    {"fit_twist": 1.0},
+    {"pca_pair": True, "fit_twist": 1.0},
+    {"pca_pair": True, "pca_gate": 3.0},
+    {"pca_pair": True, "fit_twist": 1.0, "pca_gate": 3.0},
+)
 GRIDS = {
     "main": TUNE_VARIANTS,
     "plateau": PLATEAU_VARIANTS,
@@ -145,6 +156,7 @@ GRIDS = {
     "fallback": FALLBACK_VARIANTS,
     "pcagate": PCA_GATE_VARIANTS,
     "forearm": FOREARM_VARIANTS,
+    "pair": PAIR_VARIANTS,
 }
 
 
@@ -461,8 +473,8 @@ def markdown(report: dict) -> str:
         f"- knn settings (BVH), the defaults now: `{WindowSettings(**ANGLE_DEFAULTS)}`, chosen on bandai2 fold 1 "
         "(`knn_tuning.md`, then `knn_tuning_plateau.md`; `knn_tuning_twist.md`, `_gate.md` and `_still.md` changed "
         "nothing; then `knn_tuning_fallback.md`: twist, gated_twist, short_chain, still_gate; "
-        "`knn_tuning_pcagate.md` and `_forearm.md` changed nothing). C3D knn: the registered default "
-        "(`search=energy`).",
+        "`knn_tuning_pcagate.md` and `_forearm.md` changed nothing; round H: `knn_tuning_pair.md`). C3D knn: the "
+        "registered default (`search=energy`).",
         "",
         "## Done when (issue 12)",
         "",

@@ -41,7 +41,11 @@ For every *gap* (maximal run of frames in which some scored channel is missing):
    the gate changes only what positions determine: f's joint positions are PCA's either way. With
    ``short_chain`` (cm), a joint whose subtree lies that close to it (Bandai at 15 cm: neck, head, hands,
    feet, toes) and its subtree keep the reference's angles instead (``short_chains``): positions a few cm
-   apart set angles poorly. With the truth in the database σ = 0 and the fill is exact.
+   apart set angles poorly. With ``fit_twist``, the fallback's joints with one bone (upper arm, thigh) are
+   turned about it so that the child's bend (elbow, knee) comes nearest the reference's (``fit_twists``; no
+   point moves); with ``pca_pair``, its positions are the mean of two PCA fills, with every known point and
+   with the joints whose own rotation is missing hidden too (the ``pca`` baseline's view, ``own_hidden``).
+   With the truth in the database σ = 0 and the fill is exact.
 
 Observed samples and unscored channels are never changed; missing unscored channels are interpolated.
 """
@@ -416,7 +420,7 @@ def angle_filler(
     help="kNN in joint space from a large clean database (default: the largest corpus of the skeleton, cached), "
     "offset-corrected and blended with the clip's PCA fill; options k, margin_s, near_gain, speed, offset, "
     "query_hz, distance_gain, own, fallback, max_weight, limb_distance, plateau_s, twist, limb_gate, still_gate, "
-    "gated_twist, short_chain, pca_gate, database",
+    "gated_twist, short_chain, pca_gate, fit_twist, pca_pair, database",
 )
 def _knn_angles(
     context: MethodContext, database: str | None = None, **options: Any

@@ -104,5 +104,5 @@ def test_every_tuning_grid_starts_with_the_defaults_and_holds_valid_settings() -
     for name, grid in knn_bench.GRIDS.items():
         assert grid[0] == {} and variant_name(grid[0]) == "defaults", name
         [WindowSettings(**{**ANGLE_DEFAULTS, **v}) for v in grid]  # bad settings raise ValueError
-    newest = [WindowSettings(**{**ANGLE_DEFAULTS, **v}) for v in knn_bench.GRIDS["forearm"]]
-    assert len(set(newest)) == len(knn_bench.FOREARM_VARIANTS)
+    newest = [WindowSettings(**{**ANGLE_DEFAULTS, **v}) for v in knn_bench.GRIDS["pair"]]
+    assert len(set(newest)) == len(knn_bench.PAIR_VARIANTS)
