@@ -130,7 +130,7 @@ def hop_distances(skeleton: Skeleton, joints: Iterable[int]) -> np.ndarray:
 # Joint-space defaults that differ from ``WindowSettings``'s, chosen on bandai2 fold-1 clips with and
 # without their content label in the database (the second mimics motion the database lacks), by the rule
 # of ``mocapnet.evaluate.knn_bench.tune_scores`` (benchmarks/results/knn_tuning.md, knn_tuning_plateau.md,
-# knn_tuning_fallback.md for the last four).
+# knn_tuning_fallback.md for twist, gated_twist, short_chain and still_gate, knn_tuning_pair.md for the last three).
 ANGLE_DEFAULTS: dict[str, Any] = {
     "fallback": "pca",
     "distance_gain": 6.0,
@@ -141,6 +141,9 @@ ANGLE_DEFAULTS: dict[str, Any] = {
     "gated_twist": True,
     "short_chain": 15.0,
     "still_gate": 2.0,
+    "pca_pair": True,
+    "fit_twist": 1.0,
+    "pca_gate": 3.0,
 }
 
 

@@ -492,9 +492,10 @@ def test_limb_distance_measures_the_missing_points_where_they_are_observed() -> 
     assert np.isnan(limb_rms(stored, feats, *args, w, np.array([1.0]), (4, 6)))
 
 
-# The defaults without the fallback options of round E (knn_tuning_fallback.md), so that the tests below see each
-# option alone.
-_PLAIN = {**ANGLE_DEFAULTS, "twist": "lerp", "gated_twist": False, "short_chain": None, "still_gate": None}
+# The defaults without the fallback options of rounds E and H (knn_tuning_fallback.md, knn_tuning_pair.md), so that
+# the tests below see each option alone.
+_PLAIN = {**ANGLE_DEFAULTS, "twist": "lerp", "gated_twist": False, "short_chain": None, "still_gate": None,
+          "pca_pair": False, "fit_twist": None, "pca_gate": None}  # fmt: skip
 
 
 def _fallback(noisy: Motion, mask: np.ndarray, twist: np.ndarray) -> np.ndarray:
