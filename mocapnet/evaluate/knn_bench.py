@@ -473,8 +473,8 @@ def markdown(report: dict) -> str:
         f"- knn settings (BVH), the defaults now: `{WindowSettings(**ANGLE_DEFAULTS)}`, chosen on bandai2 fold 1 "
         "(`knn_tuning.md`, then `knn_tuning_plateau.md`; `knn_tuning_twist.md`, `_gate.md` and `_still.md` changed "
         "nothing; then `knn_tuning_fallback.md`: twist, gated_twist, short_chain, still_gate; "
-        "`knn_tuning_pcagate.md` and `_forearm.md` changed nothing; round H: `knn_tuning_pair.md`). C3D knn: the "
-        "registered default (`search=energy`).",
+        "`knn_tuning_pcagate.md` and `_forearm.md` changed nothing; then `knn_tuning_pair.md`: pca_pair, fit_twist, "
+        "pca_gate). C3D knn: the registered default (`search=energy`).",
         "",
         "## Done when (issue 12)",
         "",
