@@ -41,7 +41,7 @@ def main() -> None:
         action="append",
         default=[],
         metavar="LABEL=CKPT",
-        help="score this EBD checkpoint on --split (repeatable; bandai2 only)",
+        help="score this EBD checkpoint (CKPT[:OPTIONS], e.g. a.ckpt:rehearse=2) on --split (repeatable; bandai2 only)",
     )
     parser.add_argument(
         "--split", type=split_arg, default="val", help="--compare's clips: val (fold 1) or style:NAME (default val)"

@@ -214,15 +214,17 @@ def choose(scores: Mapping[str, Mapping[str, float]], fallbacks: Mapping[str, in
 
 
 def compare(corpus: str, clips: Sequence[Motion], checkpoints: Mapping[str, str], repeats: int) -> dict:
-    """EBD networks side by side on ``clips`` of ``corpus`` (a selection set: fold 1 or an unseen style), each as
-    ``ebd`` with the shipped blend (``GAP_BLEND`` and self-check) and raw: ``ratios`` over ``TUNE`` per label
-    (``LABEL`` and ``LABEL raw``), ``select``'s choice among the blended ones, and the headline gap errors."""
+    """EBD networks side by side on ``clips`` of ``corpus`` (a selection set: fold 1 or an unseen style), each
+    ``PATH[:OPTIONS]`` as ``ebd=PATH[:OPTIONS]`` (the checkpoint's blend and self-check unless an option changes
+    it) and, without options, raw: ``ratios`` over ``TUNE`` per label (``LABEL`` and ``LABEL raw``),
+    ``select``'s choice among the blended ones, and the headline gap errors."""
     from mocapnet.methods.registry import build_method
 
     fillers = {n: build_method(n).clean for n in REFERENCES}
-    for label, path in checkpoints.items():
-        fillers[label] = build_method(f"ebd={path}").clean
-        fillers[f"{label} raw"] = raw_filler(clips[0], path)
+    for label, spec in checkpoints.items():
+        fillers[label] = build_method(f"ebd={spec}").clean
+        if ":" not in spec:  # options (e.g. rehearse=2) change the blend, not the network's own fill
+            fillers[f"{label} raw"] = raw_filler(clips[0], spec)
     filled = {}
     for c in TUNE:
         filled[c] = fill_clips(corpus, clips, c, repeats, fillers)

@@ -34,6 +34,7 @@ averaged on the circle (``tta_mean``). A reversed clip's root angular velocity i
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -48,7 +49,10 @@ from mocapnet.nn.variants import VARIANTS, accepts, method_of
 
 _HELP = (
     "{what}; checkpoint: NAME=PATH, default: the shipped one for the skeleton; options mode=sequence|windowed, "
-    "tta=reverse|warp|reverse+warp (self-ensemble), blend=METHOD (mean with an angle method)"
+    "tta=reverse|warp|reverse+warp (self-ensemble), blend=METHOD (mean with an angle method){extra}"
+)
+_EBD_EXTRA = (
+    ", rehearse=N (per gap N stand-in gaps where the truth is known; the gap is interpolated if the network lost there)"
 )
 _HELP_PAIR = "{what}; checkpoints: EBD,EBF, default: the shipped ones for the skeleton; option mode=sequence|windowed"
 _INDEX = Path(__file__).resolve().parents[1] / "checkpoints" / "index.json"
@@ -200,10 +204,12 @@ def _single(method: str):
         limit: float | None = None,
         tta: str | None = None,
         blend: str | None = None,
+        rehearse: int | None = None,
     ):
         """``limit``: EBF's self-check factor (``infer.limit_change``; default: the checkpoint's, 0: off).
         ``tta``: the self-ensemble (``tta_passes``). ``blend``: an angle method whose output is averaged with
-        the network's (weight 1/2, on the circle) — a blend, reported under its own method string."""
+        the network's (weight 1/2, on the circle) — a blend, reported under its own method string.
+        ``rehearse``: EBD's stand-in gaps per gap (``ebd.rehearse``; default: the checkpoint's blend, 0: off)."""
         from mocapnet.nn.features import scored_index
         from mocapnet.nn.infer import clean_channels
 
@@ -219,13 +225,18 @@ def _single(method: str):
         except ValueError as exc:
             raise ValueError(f"{method}: {exc}") from None
         partner = _blend_partner(method, blend, context)
+        if rehearse is not None and (
+            method != "ebd" or isinstance(rehearse, bool) or not isinstance(rehearse, int) or rehearse < 0
+        ):
+            raise ValueError(f"{method}: rehearse is an EBD option, a whole number >= 0; got {rehearse!r}")
 
         def clean(noisy: Motion, mask: np.ndarray) -> np.ndarray:
             model = resolve(noisy)
             sk, fps = noisy.skeleton, noisy.fps
+            gap_blend = "checkpoint" if rehearse is None else dataclasses.replace(model.blend(), rehearsals=rehearse)
 
             def once(channels: np.ndarray, gaps: np.ndarray) -> np.ndarray:
-                return clean_channels(model, channels, gaps, sk, fps, mode, change_limit=limit)
+                return clean_channels(model, channels, gaps, sk, fps, mode, gap_blend, change_limit=limit)
 
             idx = scored_index(sk)
             out = self_ensemble(once, noisy.channels, mask, idx, passes)
@@ -241,7 +252,8 @@ def _single(method: str):
 _WHAT = {v.name: v.what for v in VARIANTS}
 _WHAT["ebf"] += f": {_shipped_ebf_recipes()}"
 for _name, _what in _WHAT.items():
-    register(_name, "angles", help=_HELP.format(what=_what))(_single(_name))
+    _extra = _EBD_EXTRA if _name == "ebd" else ""
+    register(_name, "angles", help=_HELP.format(what=_what, extra=_extra))(_single(_name))
 
 
 @register("ebd+ebf", "angles", help=_HELP_PAIR.format(what="EBD fills gaps, then EBF denoises"))

@@ -22,15 +22,15 @@ frame-to-frame steps × ``speed_factor``). The constants of ``GAP_BLEND`` were c
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-from dataclasses import dataclass
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
 import torch
 
 from mocapnet.fill import gap_fill, mask_groups, runs
-from mocapnet.kinematics import wrap_near
+from mocapnet.kinematics import wrap_deg, wrap_near
 from mocapnet.nn.base import NORMS, CleanerModule, n_inputs
 from mocapnet.nn.layers import BLSTM, mlp, tapered
 
@@ -133,7 +133,8 @@ class GapBlend:
     ``gate_s``: the network's weight is 0 for gaps up to ``gate_s[0]``, rising linearly to 1 at ``gate_s[1]``.
     ``taper_s``: inside a gap, the weight rises linearly from ``1 / (taper_s·fps)`` next to an observed frame to
     1 at ``taper_s`` from it. ``speed_quantile`` (percent) and ``speed_factor``: the self-check's speed bound per
-    channel, in degrees per frame (``speed_factor = inf`` turns the self-check off).
+    channel, in degrees per frame (``speed_factor = inf`` turns the self-check off). ``rehearsals``: stand-in gaps
+    per gap for the rehearsal check (``rehearse``; 0: off).
     """
 
     spline_max_s: float = 0.5
@@ -141,6 +142,7 @@ class GapBlend:
     taper_s: float = 0.2
     speed_quantile: float = 95.0
     speed_factor: float = 1.5
+    rehearsals: int = 0
 
 
 #: The shipped setting, chosen on bandai2 fold 1 (``scripts/bench_ebd.py --tune``).
@@ -151,11 +153,14 @@ def as_blend(settings: Mapping[str, Any]) -> GapBlend:
     """A ``GapBlend`` from its fields as stored in a checkpoint (``gate_s`` as a list); ValueError naming
     what is wrong."""
     try:
-        blend = GapBlend(**{k: tuple(v) if k == "gate_s" else float(v) for k, v in settings.items()})
+        kinds = {"gate_s": tuple, "rehearsals": int}
+        blend = GapBlend(**{k: kinds.get(k, float)(v) for k, v in settings.items()})
     except (TypeError, ValueError) as err:
         raise ValueError(f"gap_blend {dict(settings)!r} is not a GapBlend: {err}") from None
     if len(blend.gate_s) != 2:
         raise ValueError(f"gap_blend gate_s must hold two times (s), got {blend.gate_s!r}")
+    if blend.rehearsals < 0:
+        raise ValueError(f"gap_blend rehearsals must be >= 0, got {blend.rehearsals}")
     return blend
 
 
@@ -194,26 +199,31 @@ def blend_gaps(
     fps: float,
     blend: GapBlend = GAP_BLEND,
     interpolated: tuple[np.ndarray, np.ndarray] | None = None,
+    trusted: np.ndarray | None = None,
 ) -> tuple[np.ndarray, int]:
     """EBD's output made final (module docstring): ``channels [T, C]`` (degrees; any value where ``mask [T, C]``
     is True), ``net [T, C]`` the network's fill (degrees), ``fps`` frames per second → ``(filled [T, C], number of
     gaps the self-check returned to interpolation)``. Observed samples are returned unchanged; each missing
     sample becomes ``base + w · (net - base)`` with ``w`` the gate × taper weight of its gap and position.
     ``interpolated``: ``(lerp_fill, spline_fill)`` of ``channels`` when the caller has them (tuning), else
-    computed here."""
+    computed here. ``trusted [n_gaps]`` (bool, ``gaps`` order; from ``rehearse``): False sends that gap to the
+    interpolation (counted as a fallback)."""
     out = np.where(mask, np.nan, channels).astype(np.float64)
     spline_max = blend.spline_max_s * fps
-    gaps = [(cols, a, b) for cols in mask_groups(mask).values() for a, b in runs(mask[:, cols[0]])]
+    gaps = gap_list(mask)
     bases = gap_fill(out, mask, spline_max, interpolated)
     check = bool(np.isfinite(blend.speed_factor))
     speed = channel_speed(out, mask, blend.speed_quantile) * blend.speed_factor if check else None
     lo, hi, taper = blend.gate_s[0] * fps, blend.gate_s[1] * fps, max(blend.taper_s * fps, 1.0)
     fallbacks = 0
-    for cols, a, b in gaps:
+    for g, (cols, a, b) in enumerate(gaps):
         length = b - a
         base = bases[a:b][:, cols]
         if np.isnan(base).any():  # no observed sample in these channels: only the network has a value
             out[a:b, cols] = net[a:b, cols]
+            continue
+        if trusted is not None and not trusted[g]:
+            out[a:b, cols], fallbacks = base, fallbacks + 1
             continue
         gate = float(np.clip((length - lo) / max(hi - lo, 1e-9), 0.0, 1.0))
         t = np.arange(a, b)
@@ -227,3 +237,68 @@ def blend_gaps(
             fill, fallbacks = base, fallbacks + 1
         out[a:b, cols] = fill
     return out, fallbacks
+
+
+def gap_list(mask: np.ndarray) -> list[tuple[np.ndarray, int, int]]:
+    """The gaps of ``mask [T, C]`` as ``(channels, first frame, end frame)``: each run of missing frames of the
+    channels that miss together (``fill.mask_groups``), in the order ``blend_gaps`` and ``rehearse`` use."""
+    return [(cols, a, b) for cols in mask_groups(mask).values() for a, b in runs(mask[:, cols[0]])]
+
+
+def stand_in_gaps(mask: np.ndarray, count: int, seed: int = 0) -> tuple[np.ndarray, list[list[tuple[int, int]]]]:
+    """Up to ``count`` stand-ins for each gap of ``mask [T, C]`` (``gap_list`` order): the same channels and
+    length, placed at random (``seed``) where those channels are observed over the stand-in and one frame on
+    each side, apart from every gap and every other stand-in of any of those channels. Gaps that touch the
+    clip's ends get none (their interpolation has one side only). Returns ``(stand-in mask [T, C], per gap
+    its stand-ins as (first frame, end frame))``."""
+    rng = np.random.default_rng(seed)
+    taken = mask.copy()
+    fake = np.zeros_like(mask)
+    out: list[list[tuple[int, int]]] = []
+    n = len(mask)
+    for cols, a, b in gap_list(mask):
+        length, mine = b - a, []
+        while a > 0 and b < n and len(mine) < count:
+            free = np.concatenate([[0], np.cumsum(~taken[:, cols].any(axis=1))])
+            span = length + 2  # the stand-in and its two observed neighbours
+            starts = np.flatnonzero(free[span:] - free[:-span] == span) + 1  # stand-in starts s: frames s-1 … s+L
+            if not len(starts):
+                break
+            s = int(rng.choice(starts))
+            taken[s - 1 : s + length + 1, cols] = True
+            fake[s : s + length, cols] = True
+            mine.append((s, s + length))
+        out.append(mine)
+    return fake, out
+
+
+def rehearse(
+    channels: np.ndarray,
+    mask: np.ndarray,
+    fps: float,
+    blend: GapBlend,
+    network: Callable[[np.ndarray], np.ndarray],
+) -> np.ndarray:
+    """The rehearsal check: which gaps of ``mask [T, C]`` keep the network's blend (``[n_gaps]`` bool,
+    ``gap_list`` order). Each gap gets ``blend.rehearsals`` stand-ins (``stand_in_gaps``) where the truth is the
+    observed ``channels [T, C]`` (degrees); ``network(mask [T, C]) -> [T, C]`` fills the clip with the real and
+    the stand-in gaps missing; a gap keeps the blend (``blend_gaps``, self-check included) if over its stand-ins
+    the blend's squared error is at most the interpolation's it would fall back to; gaps without a stand-in keep
+    it (nothing to judge by)."""
+    keep = np.ones(len(gap_list(mask)), dtype=bool)
+    if blend.rehearsals <= 0:
+        return keep
+    fake, stand_ins = stand_in_gaps(mask, blend.rehearsals)
+    if not fake.any():
+        return keep
+    both = mask | fake
+    trial = np.where(both, np.nan, channels)
+    base = gap_fill(trial, both, blend.spline_max_s * fps)
+    filled = blend_gaps(trial, both, network(both), fps, replace(blend, rehearsals=0))[0]
+    for g, ((cols, _, _), places) in enumerate(zip(gap_list(mask), stand_ins)):
+        if places:
+            rows = np.concatenate([np.arange(s, e) for s, e in places])
+            truth = channels[rows][:, cols]
+            err = [float((wrap_deg(x[rows][:, cols] - truth) ** 2).sum()) for x in (filled, base)]
+            keep[g] = err[0] <= err[1]
+    return keep

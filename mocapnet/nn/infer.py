@@ -25,7 +25,7 @@ from mocapnet.kinematics import wrap_deg
 from mocapnet.motion import Skeleton
 from mocapnet.nn.base import NORM_KEYS, CleanerModule, clip_statistics, uses_clip_statistics
 from mocapnet.nn.checkpoints import read_checkpoint
-from mocapnet.nn.ebd import EBD, GapBlend, blend_gaps
+from mocapnet.nn.ebd import EBD, GapBlend, blend_gaps, rehearse
 from mocapnet.nn.features import root_angular_velocity, scored_index, topology_hash
 from mocapnet.nn.variants import MODEL_MODULES
 from mocapnet.threads import pin_threads
@@ -171,16 +171,52 @@ def clean_channels(
     ``EBD.interpolate``); only the scored channels change (EBD changes only their
     missing samples). ``mode``: ``"sequence"`` (in overlapping chunks on long clips, ``predict_sequence``) or
     ``"windowed"`` (module docstring). ``gap_blend``: how EBD's fill is blended with interpolation and
-    self-checked (``ebd.blend_gaps``); ``"checkpoint"``: the setting stored with the network (``EBD.blend``);
-    None keeps the network's fill as it comes. ``change_limit``: EBF's
+    self-checked (``ebd.blend_gaps``, after ``ebd.rehearse`` when its ``rehearsals`` > 0: one more network pass
+    with stand-in gaps); ``"checkpoint"``: the setting stored with the network (``EBD.blend``); None keeps the
+    network's fill as it comes. ``change_limit``: EBF's
     self-check factor (``limit_change``; None: the checkpoint's ``change_limit`` hyper-parameter, 0: none).
     """
     if mode not in MODES:
         raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
     if isinstance(gap_blend, str) and gap_blend != "checkpoint":
         raise ValueError(f"gap_blend must be a GapBlend, 'checkpoint' or None, got {gap_blend!r}")
-    result = model.interpolate(channels, mask, fps) if isinstance(model, EBD) else lerp_fill(channels, mask)
     idx = scored_index(skeleton)
+    result, out = _network_output(model, channels, mask, idx, skeleton, fps, mode)
+    if isinstance(model, EBD):
+        scored = result[:, idx]
+        if gap_blend is None:
+            result[:, idx] = np.where(mask[:, idx], out.numpy(), scored)
+        else:
+            blend = model.blend() if gap_blend == "checkpoint" else gap_blend
+
+            def network(scored_mask: np.ndarray) -> np.ndarray:  # the fill with more samples hidden (rehearse)
+                more = mask.copy()
+                more[:, idx] = scored_mask
+                trial = channels.copy()
+                trial[more] = np.nan
+                return _network_output(model, trial, more, idx, skeleton, fps, mode)[1].numpy()
+
+            trusted = rehearse(scored, mask[:, idx], fps, blend, network) if blend.rehearsals else None
+            result[:, idx] = blend_gaps(scored, mask[:, idx], out.numpy(), fps, blend, trusted=trusted)[0]
+    else:
+        limit = float(model.hparams.get("change_limit", 0.0)) if change_limit is None else change_limit
+        cleaned = out.numpy().astype(np.float64)
+        result[:, idx] = limit_change(result[:, idx], cleaned, limit) if limit > 0 else cleaned
+    return result
+
+
+def _network_output(
+    model: CleanerModule,
+    channels: np.ndarray,
+    mask: np.ndarray,
+    idx: np.ndarray,
+    skeleton: Skeleton,
+    fps: float,
+    mode: str,
+) -> tuple[np.ndarray, torch.Tensor]:
+    """``(interpolated channels [T, C_all], the network's output [T, C] for the scored channels idx)`` of one
+    clip (``clean_channels``'s arguments)."""
+    result = model.interpolate(channels, mask, fps) if isinstance(model, EBD) else lerp_fill(channels, mask)
     x = torch.as_tensor(result[:, idx], dtype=torch.float32)
     m = torch.as_tensor(mask[:, idx], dtype=torch.bool)
     w = torch.as_tensor(root_angular_velocity(skeleton, result, fps), dtype=torch.float32)
@@ -188,19 +224,5 @@ def clean_channels(
         batch = {"filled": x[None], "mask": m[None], "angvel": w[None]}
         if uses_clip_statistics(model):
             batch |= clip_statistics(x[None], w[None])
-        out = predict_sequence(model, batch)
-    else:
-        out = model.windowed(x, m, w)
-    del x, w
-    if isinstance(model, EBD):
-        scored = result[:, idx]
-        if gap_blend is None:
-            result[:, idx] = np.where(mask[:, idx], out.numpy(), scored)
-        else:
-            blend = model.blend() if gap_blend == "checkpoint" else gap_blend
-            result[:, idx] = blend_gaps(scored, mask[:, idx], out.numpy(), fps, blend)[0]
-    else:
-        limit = float(model.hparams.get("change_limit", 0.0)) if change_limit is None else change_limit
-        cleaned = out.numpy().astype(np.float64)
-        result[:, idx] = limit_change(result[:, idx], cleaned, limit) if limit > 0 else cleaned
-    return result
+        return result, predict_sequence(model, batch)
+    return result, model.windowed(x, m, w)

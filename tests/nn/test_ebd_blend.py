@@ -9,7 +9,7 @@ import pytest
 
 from mocapnet.corrupt import corrupt_motion
 from mocapnet.fill import lerp_fill, spline_fill
-from mocapnet.nn.ebd import GAP_BLEND, blend_gaps, channel_speed
+from mocapnet.nn.ebd import GAP_BLEND, blend_gaps, channel_speed, gap_list, rehearse, stand_in_gaps
 
 FPS = 30.0
 PURE_NETWORK = dataclasses.replace(GAP_BLEND, spline_max_s=0.0, gate_s=(0.0, 0.0), taper_s=0.0, speed_factor=np.inf)
@@ -121,3 +121,82 @@ def test_the_blend_stored_with_a_network_is_the_one_it_uses(tiny, sample):
         tiny("ebd", sample, gap_blend={"taper": 1.0})
     with pytest.raises(ValueError, match="gate_s"):
         tiny("ebd", sample, gap_blend={"gate_s": [0.1]})
+
+
+def test_stand_in_gaps_copy_each_gap_onto_observed_frames_apart_from_every_gap():
+    mask = gap_mask((300, 6), [(0, 10, [0]), (50, 60, [0]), (100, 130, [1, 2]), (120, 124, [3]), (290, 300, [4])])
+    fake, places = stand_in_gaps(mask, 3)
+    gaps = gap_list(mask)
+    assert len(places) == len(gaps)
+    assert not (fake & mask).any()
+    for (cols, a, b), mine in zip(gaps, places):
+        if a == 0 or b == len(mask):
+            assert mine == []  # a gap at the clip's ends has a one-sided interpolation: nothing like it to rehearse
+            continue
+        assert len(mine) == 3
+        for s, e in mine:
+            assert e - s == b - a and fake[s:e][:, cols].all()
+            assert not mask[s - 1 : e + 1][:, cols].any()  # observed, with an observed frame on each side
+    # stand-ins of one gap do not touch each other (each keeps its own observed neighbours)
+    starts = sorted(s for s, _ in places[1])
+    assert all(b - a >= 12 for a, b in zip(starts, starts[1:]))
+    again, _ = stand_in_gaps(mask, 3)
+    np.testing.assert_array_equal(fake, again)  # the same clip gets the same stand-ins
+    assert not stand_in_gaps(gap_mask((40, 2), [(10, 30, [0])]), 3)[0].any()  # no room: none
+
+
+def test_rehearsal_keeps_the_network_where_it_wins_on_the_stand_ins_and_interpolates_where_it_loses():
+    truth = smooth_channels(600)
+    mask = gap_mask(truth.shape, [(100, 120, [0]), (300, 330, [1, 2]), (590, 600, [3])])
+    channels = np.where(mask, np.nan, truth)
+    blend = dataclasses.replace(GAP_BLEND, rehearsals=2, speed_factor=np.inf)
+    good = rehearse(channels, mask, FPS, blend, lambda m: truth)
+    np.testing.assert_array_equal(good, [True, True, True])
+
+    def wrong_on_channel_0(m):  # off by 20° on channel 0, right elsewhere
+        return truth + np.where(np.arange(6) == 0, 20.0, 0.0)
+
+    verdict = rehearse(channels, mask, FPS, blend, wrong_on_channel_0)
+    np.testing.assert_array_equal(verdict, [False, True, True])  # the end gap has no stand-in: kept
+    off = rehearse(channels, mask, FPS, dataclasses.replace(blend, rehearsals=0), wrong_on_channel_0)
+    assert off.all()
+    out, fallbacks = blend_gaps(channels, mask, wrong_on_channel_0(mask), FPS, blend, trusted=verdict)
+    assert fallbacks == 1
+    np.testing.assert_allclose(out[100:120, 0], lerp_fill(channels, mask)[100:120, 0])  # > 0.5 s: lerp
+    lerp_error = np.abs(lerp_fill(channels, mask) - truth)[300:330, 1:3]
+    assert (np.abs(out - truth)[300:330, 1:3] < lerp_error + 1e-9).all()  # kept: the blend towards the truth
+
+
+def test_rehearse_option_runs_one_more_pass_and_interpolates_the_gaps_it_rejects(sample, monkeypatch):
+    from mocapnet.fill import gap_fill
+    from mocapnet.methods.registry import build_method
+    from mocapnet.nn import infer
+
+    rng = np.random.default_rng(5)
+    noisy, mask = corrupt_motion(sample.with_channels(sample.channels[:900]), "gaps", rng)
+    motion = sample.with_channels(noisy)
+    plain = build_method("ebd").clean(motion, mask)  # the shipped EBD of the sample's skeleton
+    passes = []
+    run = infer._network_output
+    monkeypatch.setattr(infer, "_network_output", lambda *a: passes.append(a[2].sum()) or run(*a))
+    rehearsed = build_method("ebd:rehearse=2").clean(motion, mask)
+    assert len(passes) == 2 and passes[1] > passes[0]  # the second pass hides the stand-ins as well
+    np.testing.assert_array_equal(rehearsed[~mask], noisy[~mask])
+    changed = np.flatnonzero((rehearsed != plain).any(axis=0))
+    assert len(changed)  # some gaps went back to interpolation
+    base = gap_fill(noisy, mask, GAP_BLEND.spline_max_s * sample.fps)
+    for c in changed:  # ... and each changed sample is that interpolation
+        moved = rehearsed[:, c] != plain[:, c]
+        np.testing.assert_allclose(rehearsed[moved, c], base[moved, c])
+
+
+def test_rehearse_is_an_ebd_option_of_whole_numbers():
+    from mocapnet.methods.registry import build_method
+    from mocapnet.nn.ebd import as_blend
+
+    for bad in ("ebf:rehearse=2", "ebd:rehearse=-1", "ebd:rehearse=1.5", "ebd:rehearse=true"):
+        with pytest.raises(ValueError, match="rehearse"):
+            build_method(bad)
+    assert as_blend({"rehearsals": 3}).rehearsals == 3
+    with pytest.raises(ValueError, match="rehearsals"):
+        as_blend({"rehearsals": -1})
