@@ -15,9 +15,9 @@ a filter head of ``head_layers`` tanh layers ends in the filter parameters:
 ``norm="corpus"`` (default) normalises the inputs with the training set's statistics; ``norm="clip"`` with
 each clip's own (``base.clip_statistics`` of the noisy input), and then the bias is in units of that clip's
 scale too, so the network sees the same relative noise on a clip of any corpus; ``norm="both"`` gives it both
-inputs side by side (``base.input_features``; offline only: no streaming kernel). ``change_limit`` is used at
-inference only: the self-check factor of ``infer.limit_change`` (0: off), chosen on the validation fold and
-stored with the checkpoint.
+inputs side by side (``base.input_features``; a stream takes the running clip statistics for the clip part).
+``change_limit`` is used at inference only: the self-check factor of ``infer.limit_change`` (0: off), chosen on
+the validation fold and stored with the checkpoint.
 
 Departures from the paper, all configurable: hidden size 64 per direction by default (the paper used about
 one unit per channel: 126 for 126 channels; bandai2 has 60 scored channels, CMU 90); PyTorch's default weight
