@@ -205,11 +205,15 @@ def _single(method: str):
         tta: str | None = None,
         blend: str | None = None,
         rehearse: int | None = None,
+        rehearse_margin: float | None = None,
+        rehearse_min_s: float | None = None,
     ):
         """``limit``: EBF's self-check factor (``infer.limit_change``; default: the checkpoint's, 0: off).
         ``tta``: the self-ensemble (``tta_passes``). ``blend``: an angle method whose output is averaged with
         the network's (weight 1/2, on the circle) — a blend, reported under its own method string.
-        ``rehearse``: EBD's stand-in gaps per gap (``ebd.rehearse``; default: the checkpoint's blend, 0: off)."""
+        ``rehearse``, ``rehearse_margin``, ``rehearse_min_s``: EBD's rehearsal check (``ebd.GapBlend``; default:
+        the checkpoint's blend; ``rehearse=0``: off)."""
+        from mocapnet.nn.ebd import as_blend
         from mocapnet.nn.features import scored_index
         from mocapnet.nn.infer import clean_channels
 
@@ -225,15 +229,29 @@ def _single(method: str):
         except ValueError as exc:
             raise ValueError(f"{method}: {exc}") from None
         partner = _blend_partner(method, blend, context)
-        if rehearse is not None and (
-            method != "ebd" or isinstance(rehearse, bool) or not isinstance(rehearse, int) or rehearse < 0
-        ):
-            raise ValueError(f"{method}: rehearse is an EBD option, a whole number >= 0; got {rehearse!r}")
+        rehearsal = {
+            k: v
+            for k, v in (
+                ("rehearsals", rehearse),
+                ("rehearse_margin", rehearse_margin),
+                ("rehearse_min_s", rehearse_min_s),
+            )
+            if v is not None
+        }
+        if rehearse is not None and (isinstance(rehearse, bool) or not isinstance(rehearse, int)):
+            raise ValueError(f"{method}: rehearse is a whole number of stand-in gaps, got {rehearse!r}")
+        if rehearsal and method != "ebd":
+            raise ValueError(f"{method}: rehearse, rehearse_margin and rehearse_min_s are EBD options")
+        if rehearsal:
+            try:
+                as_blend(rehearsal)
+            except ValueError as exc:
+                raise ValueError(f"{method}: {exc}") from None
 
         def clean(noisy: Motion, mask: np.ndarray) -> np.ndarray:
             model = resolve(noisy)
             sk, fps = noisy.skeleton, noisy.fps
-            gap_blend = "checkpoint" if rehearse is None else dataclasses.replace(model.blend(), rehearsals=rehearse)
+            gap_blend = dataclasses.replace(model.blend(), **rehearsal) if rehearsal else "checkpoint"
 
             def once(channels: np.ndarray, gaps: np.ndarray) -> np.ndarray:
                 return clean_channels(model, channels, gaps, sk, fps, mode, gap_blend, change_limit=limit)

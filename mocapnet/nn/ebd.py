@@ -134,7 +134,8 @@ class GapBlend:
     ``taper_s``: inside a gap, the weight rises linearly from ``1 / (taper_s·fps)`` next to an observed frame to
     1 at ``taper_s`` from it. ``speed_quantile`` (percent) and ``speed_factor``: the self-check's speed bound per
     channel, in degrees per frame (``speed_factor = inf`` turns the self-check off). ``rehearsals``: stand-in gaps
-    per gap for the rehearsal check (``rehearse``; 0: off).
+    per gap for the rehearsal check (``rehearse``; 0: off); a gap goes to the interpolation when its stand-ins'
+    error is below ``rehearse_margin`` × the blend's; gaps shorter than ``rehearse_min_s`` are not rehearsed.
     """
 
     spline_max_s: float = 0.5
@@ -143,6 +144,8 @@ class GapBlend:
     speed_quantile: float = 95.0
     speed_factor: float = 1.5
     rehearsals: int = 0
+    rehearse_margin: float = 1.0
+    rehearse_min_s: float = 0.0
 
 
 #: The shipped setting, chosen on bandai2 fold 1 (``scripts/bench_ebd.py --tune``).
@@ -159,8 +162,8 @@ def as_blend(settings: Mapping[str, Any]) -> GapBlend:
         raise ValueError(f"gap_blend {dict(settings)!r} is not a GapBlend: {err}") from None
     if len(blend.gate_s) != 2:
         raise ValueError(f"gap_blend gate_s must hold two times (s), got {blend.gate_s!r}")
-    if blend.rehearsals < 0:
-        raise ValueError(f"gap_blend rehearsals must be >= 0, got {blend.rehearsals}")
+    if blend.rehearsals < 0 or not blend.rehearse_margin > 0 or blend.rehearse_min_s < 0:
+        raise ValueError(f"gap_blend needs rehearsals >= 0, rehearse_margin > 0, rehearse_min_s >= 0: got {blend}")
     return blend
 
 
@@ -245,12 +248,14 @@ def gap_list(mask: np.ndarray) -> list[tuple[np.ndarray, int, int]]:
     return [(cols, a, b) for cols in mask_groups(mask).values() for a, b in runs(mask[:, cols[0]])]
 
 
-def stand_in_gaps(mask: np.ndarray, count: int, seed: int = 0) -> tuple[np.ndarray, list[list[tuple[int, int]]]]:
-    """Up to ``count`` stand-ins for each gap of ``mask [T, C]`` (``gap_list`` order): the same channels and
-    length, placed at random (``seed``) where those channels are observed over the stand-in and one frame on
-    each side, apart from every gap and every other stand-in of any of those channels. Gaps that touch the
-    clip's ends get none (their interpolation has one side only). Returns ``(stand-in mask [T, C], per gap
-    its stand-ins as (first frame, end frame))``."""
+def stand_in_gaps(
+    mask: np.ndarray, count: int, min_frames: float = 0.0, seed: int = 0
+) -> tuple[np.ndarray, list[list[tuple[int, int]]]]:
+    """Up to ``count`` stand-ins for each gap of ``mask [T, C]`` (``gap_list`` order) of at least ``min_frames``
+    frames: the same channels and length, placed at random (``seed``) where those channels are observed over the
+    stand-in and one frame on each side, apart from every gap and every other stand-in of any of those channels.
+    Gaps that touch the clip's ends get none (their interpolation has one side only). Returns ``(stand-in mask
+    [T, C], per gap its stand-ins as (first frame, end frame))``."""
     rng = np.random.default_rng(seed)
     taken = mask.copy()
     fake = np.zeros_like(mask)
@@ -258,7 +263,7 @@ def stand_in_gaps(mask: np.ndarray, count: int, seed: int = 0) -> tuple[np.ndarr
     n = len(mask)
     for cols, a, b in gap_list(mask):
         length, mine = b - a, []
-        while a > 0 and b < n and len(mine) < count:
+        while a > 0 and b < n and length >= min_frames and len(mine) < count:
             free = np.concatenate([[0], np.cumsum(~taken[:, cols].any(axis=1))])
             span = length + 2  # the stand-in and its two observed neighbours
             starts = np.flatnonzero(free[span:] - free[:-span] == span) + 1  # stand-in starts s: frames s-1 … s+L
@@ -282,13 +287,13 @@ def rehearse(
     """The rehearsal check: which gaps of ``mask [T, C]`` keep the network's blend (``[n_gaps]`` bool,
     ``gap_list`` order). Each gap gets ``blend.rehearsals`` stand-ins (``stand_in_gaps``) where the truth is the
     observed ``channels [T, C]`` (degrees); ``network(mask [T, C]) -> [T, C]`` fills the clip with the real and
-    the stand-in gaps missing; a gap keeps the blend (``blend_gaps``, self-check included) if over its stand-ins
-    the blend's squared error is at most the interpolation's it would fall back to; gaps without a stand-in keep
-    it (nothing to judge by)."""
+    the stand-in gaps missing; a gap keeps the blend (``blend_gaps``, self-check included) unless over its
+    stand-ins the squared error of the interpolation it would fall back to is below ``blend.rehearse_margin`` ×
+    the blend's; gaps without a stand-in keep it (nothing to judge by)."""
     keep = np.ones(len(gap_list(mask)), dtype=bool)
     if blend.rehearsals <= 0:
         return keep
-    fake, stand_ins = stand_in_gaps(mask, blend.rehearsals)
+    fake, stand_ins = stand_in_gaps(mask, blend.rehearsals, blend.rehearse_min_s * fps)
     if not fake.any():
         return keep
     both = mask | fake
@@ -300,5 +305,5 @@ def rehearse(
             rows = np.concatenate([np.arange(s, e) for s, e in places])
             truth = channels[rows][:, cols]
             err = [float((wrap_deg(x[rows][:, cols] - truth) ** 2).sum()) for x in (filled, base)]
-            keep[g] = err[0] <= err[1]
+            keep[g] = err[1] >= blend.rehearse_margin * err[0]
     return keep

@@ -160,6 +160,12 @@ def test_rehearsal_keeps_the_network_where_it_wins_on_the_stand_ins_and_interpol
     np.testing.assert_array_equal(verdict, [False, True, True])  # the end gap has no stand-in: kept
     off = rehearse(channels, mask, FPS, dataclasses.replace(blend, rehearsals=0), wrong_on_channel_0)
     assert off.all()
+    # the margin: interpolation must beat the blend by that factor (here it cannot beat it by 1e6)
+    assert rehearse(channels, mask, FPS, dataclasses.replace(blend, rehearse_margin=1e-6), wrong_on_channel_0).all()
+    # gaps shorter than rehearse_min_s are not rehearsed: the 20-frame gap keeps the blend at 1 s
+    short_kept = rehearse(channels, mask, FPS, dataclasses.replace(blend, rehearse_min_s=1.0), wrong_on_channel_0)
+    np.testing.assert_array_equal(short_kept, [True, True, True])
+    assert not stand_in_gaps(mask, 2, min_frames=31)[0].any() and stand_in_gaps(mask, 2, min_frames=30)[0].any()
     out, fallbacks = blend_gaps(channels, mask, wrong_on_channel_0(mask), FPS, blend, trusted=verdict)
     assert fallbacks == 1
     np.testing.assert_allclose(out[100:120, 0], lerp_fill(channels, mask)[100:120, 0])  # > 0.5 s: lerp
@@ -194,9 +200,12 @@ def test_rehearse_is_an_ebd_option_of_whole_numbers():
     from mocapnet.methods.registry import build_method
     from mocapnet.nn.ebd import as_blend
 
-    for bad in ("ebf:rehearse=2", "ebd:rehearse=-1", "ebd:rehearse=1.5", "ebd:rehearse=true"):
+    bad_options = ("ebf:rehearse=2", "ebd:rehearse=-1", "ebd:rehearse=1.5", "ebd:rehearse=true")
+    bad_options += ("ebd:rehearse_margin=0", "ebd:rehearse_min_s=-1", "ebf-free:rehearse_margin=0.5")
+    for bad in bad_options:
         with pytest.raises(ValueError, match="rehearse"):
             build_method(bad)
     assert as_blend({"rehearsals": 3}).rehearsals == 3
-    with pytest.raises(ValueError, match="rehearsals"):
-        as_blend({"rehearsals": -1})
+    for bad in ({"rehearsals": -1}, {"rehearse_margin": 0.0}, {"rehearse_min_s": -0.1}):
+        with pytest.raises(ValueError, match="rehearse"):
+            as_blend(bad)
