@@ -228,9 +228,13 @@ def pca_angles(
     joint and End Site positions (``visible [T, P]``), taken back to angles by ``inverse_kinematics`` (twist
     from ``base``); points PCA cannot rebuild keep ``base``'s positions, and channels ``keep [C]`` (whole
     subtrees, ``short_chains``) keep ``base``'s angles. With ``hidden [T, P]`` (points also hidden, e.g.
-    ``own_hidden``), the positions are the mean of the two fills, with ``visible`` and with ``visible &
-    ~hidden``, where both rebuilt a point. With ``fit_twist`` (the weight of a joint's own reference),
-    ``fit_twists`` turns the joints with one bone about it towards ``base``'s bends."""
+    ``own_hidden``), the IK's targets are the mean of the two fills, with ``visible`` and with ``visible &
+    ~hidden``, where both rebuilt a point (else the one that did). A known point hidden in the second fill (the
+    upper arm's position) thus gets the mean of its known position and PCA's estimate as its target, as the
+    ``pca`` baseline gets PCA's estimate alone: the IK turns its parent (whose channels are not written) towards
+    it, and the written angles of the joints below are relative to that turned frame. With ``fit_twist`` (the
+    weight of a joint's own reference), ``fit_twists`` turns the joints with one bone about it towards
+    ``base``'s bends."""
     ref = motion.with_channels(base)
     pos = joint_positions(ref, end_sites=True)
     with warnings.catch_warnings():
