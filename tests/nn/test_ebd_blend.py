@@ -149,7 +149,7 @@ def test_rehearsal_keeps_the_network_where_it_wins_on_the_stand_ins_and_interpol
     truth = smooth_channels(600)
     mask = gap_mask(truth.shape, [(100, 120, [0]), (300, 330, [1, 2]), (590, 600, [3])])
     channels = np.where(mask, np.nan, truth)
-    blend = dataclasses.replace(GAP_BLEND, rehearsals=2, speed_factor=np.inf)
+    blend = dataclasses.replace(GAP_BLEND, rehearsals=2, rehearse_margin=1.0, speed_factor=np.inf)
     good = rehearse(channels, mask, FPS, blend, lambda m: truth)
     np.testing.assert_array_equal(good, [True, True, True])
 
@@ -181,7 +181,7 @@ def test_rehearse_option_runs_one_more_pass_and_interpolates_the_gaps_it_rejects
     rng = np.random.default_rng(5)
     noisy, mask = corrupt_motion(sample.with_channels(sample.channels[:900]), "gaps", rng)
     motion = sample.with_channels(noisy)
-    plain = build_method("ebd").clean(motion, mask)  # the shipped EBD of the sample's skeleton
+    plain = build_method("ebd:rehearse=0").clean(motion, mask)  # the shipped EBD, no rehearsal
     passes = []
     run = infer._network_output
     monkeypatch.setattr(infer, "_network_output", lambda *a: passes.append(a[2].sum()) or run(*a))
