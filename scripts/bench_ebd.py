@@ -49,8 +49,9 @@ def main() -> None:
     parser.add_argument("--out", default=None, help="path without suffix")
     args = parser.parse_args()
     checkpoints = dict(c.split("=", 1) for c in args.compare if "=" in c)
-    if len(checkpoints) != len(args.compare) or not all(checkpoints) or not all(checkpoints.values()):
-        parser.error("--compare takes LABEL=CKPT with distinct labels")
+    labels_ok = all(label and not set(label) & set(":/,") for label in checkpoints)
+    if len(checkpoints) != len(args.compare) or not labels_ok or not all(checkpoints.values()):
+        parser.error("--compare takes LABEL=CKPT[:OPTIONS] with distinct labels (no ':', '/' or ',' in a label)")
     if checkpoints and args.split == "test":
         parser.error("--compare is for choosing: give --split val or style:NAME (fold 0 is the test)")
     if checkpoints and (args.tune or args.corpus not in (None, "bandai2")):

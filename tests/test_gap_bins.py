@@ -38,6 +38,8 @@ def test_headline_is_the_harness_gap_error_and_ratios_use_the_better_reference()
     assert r["bin ≤ 5"] == pytest.approx(0.5) and r["bin 16–30"] == pytest.approx(3.0)
     exact = FilledClip("b", item.truth, item.mask, 30.0, {n: item.truth for n in ("lerp", "spline", "good")})
     assert ratios({"gaps": [exact]}, "good") == {}  # nothing to beat: no ratio rather than 0/0
+    exact.outputs["good"] = item.truth + item.mask  # ... but missing what interpolation gets exactly is not let off
+    assert ratios({"gaps": [exact]}, "good")["gaps"] == np.inf
 
 
 def test_select_ranks_near_ties_of_the_worst_ratio_by_the_mean():

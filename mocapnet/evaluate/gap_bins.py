@@ -108,17 +108,24 @@ def bin_errors(items: Sequence[FilledClip], names: Sequence[str]) -> list[dict]:
 def ratios(filled: Mapping[str, Sequence[FilledClip]], name: str) -> dict[str, float]:
     """The selection score's ratios of ``name``: per corruption its headline ÷ the better of lerp's and
     spline's, and per gap-length bin (gaps of every corruption pooled) its RMS ÷ the better of theirs. A
-    corruption or bin that both references fill exactly (hidden channels that never move) has no ratio."""
+    corruption or bin that both references fill exactly (hidden channels that never move) has no ratio, unless
+    ``name`` misses it (then inf)."""
     out = {}
     for c, items in filled.items():
-        best = min(headline(items, r) for r in REFERENCES) if items else 0.0
-        if best > 0:
-            out[c] = headline(items, name) / best
+        if items:
+            out[c] = _ratio(headline(items, name), min(headline(items, r) for r in REFERENCES))
     for row in bin_errors([it for items in filled.values() for it in items], [name, *REFERENCES]):
-        best = min(row[r] for r in REFERENCES)
-        if row["gaps"] and best > 0:
-            out[f"bin {row['bin']}"] = row[name] / best
-    return out
+        if row["gaps"]:
+            out[f"bin {row['bin']}"] = _ratio(row[name], min(row[r] for r in REFERENCES))
+    return {k: v for k, v in out.items() if not np.isnan(v)}
+
+
+def _ratio(error: float, best: float) -> float:
+    """``error / best``; where the references are exact (``best`` 0) NaN (no ratio) if ``error`` is 0 too, else
+    inf (a candidate that misses what interpolation gets exactly is not let off)."""
+    if best > 0:
+        return error / best
+    return float("nan") if error == 0 else float("inf")
 
 
 def select(scores: Mapping[str, Mapping[str, float]], tie: float = 0.005) -> str:
@@ -131,38 +138,41 @@ def select(scores: Mapping[str, Mapping[str, float]], tie: float = 0.005) -> str
 
 def candidates(grid: str = "around") -> dict:
     """Blend settings scored by ``tune``. ``grid="around"``: one parameter at a time around the shipped
-    ``GAP_BLEND``; ``"gates"``: longer length gates (0.3–0.5 s) with a spline base up to 0.25 or 0.5 s. "no
-    check" (self-check off) is the self-check's baseline in both."""
+    ``GAP_BLEND`` without its rehearsal ("shipped" is that blend alone); ``"gates"``: longer length gates
+    (0.3–0.5 s) with a spline base up to 0.25 or 0.5 s. "no check" (self-check off) is the self-check's baseline in
+    both."""
     from mocapnet.nn.ebd import GAP_BLEND
+
+    alone = dataclasses.replace(GAP_BLEND, rehearsals=0)  # tune scores blend_gaps without the rehearsal
 
     if grid == "gates":
         gates = ((1 / 30, 0.3), (1 / 30, 0.4), (0.1, 0.4), (0.1, 0.5))
         return {
             **{
                 f"gate {lo:.3g}-{hi:g} s, spline <= {sm:g} s": dataclasses.replace(
-                    GAP_BLEND, gate_s=(lo, hi), spline_max_s=sm
+                    alone, gate_s=(lo, hi), spline_max_s=sm
                 )
                 for lo, hi in gates
                 for sm in (0.25, 0.5)
             },
-            "shipped": GAP_BLEND,
-            "no check": dataclasses.replace(GAP_BLEND, speed_factor=OFF),
+            "shipped": alone,
+            "no check": dataclasses.replace(alone, speed_factor=OFF),
         }
     if grid != "around":
         raise ValueError(f"grid must be 'around' or 'gates', got {grid!r}")
     return {
-        "shipped": GAP_BLEND,
-        "no check": dataclasses.replace(GAP_BLEND, speed_factor=OFF),
-        "no taper": dataclasses.replace(GAP_BLEND, taper_s=0.0),
-        "no gate": dataclasses.replace(GAP_BLEND, gate_s=(0.0, 0.0)),
-        "no gate or taper": dataclasses.replace(GAP_BLEND, gate_s=(0.0, 0.0), taper_s=0.0),
-        "gate to 0.1 s": dataclasses.replace(GAP_BLEND, gate_s=(GAP_BLEND.gate_s[0], 0.1)),
-        "taper 0.1 s": dataclasses.replace(GAP_BLEND, taper_s=0.1),
-        "lerp base": dataclasses.replace(GAP_BLEND, spline_max_s=0.0),
-        "spline <= 0.25 s": dataclasses.replace(GAP_BLEND, spline_max_s=0.25),
-        **{f"check x{f:g}": dataclasses.replace(GAP_BLEND, speed_factor=f) for f in (1.0, 2.0, 3.0)},
-        "check q99": dataclasses.replace(GAP_BLEND, speed_quantile=99.0),
-        "check q100": dataclasses.replace(GAP_BLEND, speed_quantile=100.0),
+        "shipped": alone,
+        "no check": dataclasses.replace(alone, speed_factor=OFF),
+        "no taper": dataclasses.replace(alone, taper_s=0.0),
+        "no gate": dataclasses.replace(alone, gate_s=(0.0, 0.0)),
+        "no gate or taper": dataclasses.replace(alone, gate_s=(0.0, 0.0), taper_s=0.0),
+        "gate to 0.1 s": dataclasses.replace(alone, gate_s=(alone.gate_s[0], 0.1)),
+        "taper 0.1 s": dataclasses.replace(alone, taper_s=0.1),
+        "lerp base": dataclasses.replace(alone, spline_max_s=0.0),
+        "spline <= 0.25 s": dataclasses.replace(alone, spline_max_s=0.25),
+        **{f"check x{f:g}": dataclasses.replace(alone, speed_factor=f) for f in (1.0, 2.0, 3.0)},
+        "check q99": dataclasses.replace(alone, speed_quantile=99.0),
+        "check q100": dataclasses.replace(alone, speed_quantile=100.0),
     }
 
 

@@ -240,13 +240,18 @@ def _single(method: str):
         }
         if rehearse is not None and (isinstance(rehearse, bool) or not isinstance(rehearse, int)):
             raise ValueError(f"{method}: rehearse is a whole number of stand-in gaps, got {rehearse!r}")
+        if any(isinstance(v, (bool, str)) for v in rehearsal.values()):
+            raise ValueError(f"{method}: rehearse, rehearse_margin and rehearse_min_s take numbers, got {rehearsal}")
         if rehearsal and method != "ebd":
             raise ValueError(f"{method}: rehearse, rehearse_margin and rehearse_min_s are EBD options")
         if rehearsal:
             try:
-                as_blend(rehearsal)
+                checked = as_blend(rehearsal)
             except ValueError as exc:
                 raise ValueError(f"{method}: {exc}") from None
+            if not all(np.isfinite(float(getattr(checked, k))) for k in rehearsal):
+                raise ValueError(f"{method}: rehearse, rehearse_margin and rehearse_min_s must be finite")
+            rehearsal = {k: getattr(checked, k) for k in rehearsal}  # the values as_blend checked and converted
 
         def clean(noisy: Motion, mask: np.ndarray) -> np.ndarray:
             model = resolve(noisy)

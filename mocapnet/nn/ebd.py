@@ -157,11 +157,18 @@ class GapBlend:
 GAP_BLEND = GapBlend(rehearsals=4, rehearse_margin=0.5)
 
 
+def _whole(value: Any) -> int:
+    """``value`` as an int if it is a whole number (not a bool), else ValueError."""
+    if isinstance(value, bool) or not np.isfinite(float(value)) or float(value) != int(float(value)):
+        raise ValueError(f"rehearsals must be a whole number, got {value!r}")
+    return int(float(value))
+
+
 def as_blend(settings: Mapping[str, Any]) -> GapBlend:
     """A ``GapBlend`` from its fields as stored in a checkpoint (``gate_s`` as a list); ValueError naming
     what is wrong."""
     try:
-        kinds = {"gate_s": tuple, "rehearsals": int}
+        kinds = {"gate_s": tuple, "rehearsals": _whole}
         blend = GapBlend(**{k: kinds.get(k, float)(v) for k, v in settings.items()})
     except (TypeError, ValueError) as err:
         raise ValueError(f"gap_blend {dict(settings)!r} is not a GapBlend: {err}") from None
@@ -211,11 +218,12 @@ def blend_gaps(
 ) -> tuple[np.ndarray, int]:
     """EBD's output made final (module docstring): ``channels [T, C]`` (degrees; any value where ``mask [T, C]``
     is True), ``net [T, C]`` the network's fill (degrees), ``fps`` frames per second → ``(filled [T, C], number of
-    gaps the self-check returned to interpolation)``. Observed samples are returned unchanged; each missing
-    sample becomes ``base + w · (net - base)`` with ``w`` the gate × taper weight of its gap and position.
+    gaps returned to interpolation by the self-check or by ``trusted``)``. Observed samples are returned unchanged;
+    each missing sample becomes ``base + w · (net - base)`` with ``w`` the gate × taper weight of its gap and position.
     ``interpolated``: ``(lerp_fill, spline_fill)`` of ``channels`` when the caller has them (tuning), else
     computed here. ``trusted [n_gaps]`` (bool, ``gaps`` order; from ``rehearse``): False sends that gap to the
-    interpolation (counted as a fallback)."""
+    interpolation (counted as a fallback). ``blend.rehearsals`` is not used here: the rehearsal needs the network
+    (``rehearse``, run by ``infer.clean_channels``), and its verdicts come in as ``trusted``."""
     out = np.where(mask, np.nan, channels).astype(np.float64)
     spline_max = blend.spline_max_s * fps
     gaps = gap_list(mask)
@@ -262,22 +270,23 @@ def stand_in_gaps(
     Gaps that touch the clip's ends get none (their interpolation has one side only). Returns ``(stand-in mask
     [T, C], per gap its stand-ins as (first frame, end frame))``."""
     rng = np.random.default_rng(seed)
-    taken = mask.copy()
     fake = np.zeros_like(mask)
     out: list[list[tuple[int, int]]] = []
     n = len(mask)
+    taken: dict[int, np.ndarray] = {}  # per channel group (its first channel): frames missing or rehearsed [T]
     for cols, a, b in gap_list(mask):
         length, mine = b - a, []
-        while a > 0 and b < n and length >= min_frames and len(mine) < count:
-            free = np.concatenate([[0], np.cumsum(~taken[:, cols].any(axis=1))])
+        busy = taken.setdefault(int(cols[0]), mask[:, cols].any(axis=1))
+        if a > 0 and b < n and length >= min_frames and count > 0:
+            free = np.concatenate([[0], np.cumsum(~busy)])
             span = length + 2  # the stand-in and its two observed neighbours
             starts = np.flatnonzero(free[span:] - free[:-span] == span) + 1  # stand-in starts s: frames s-1 … s+L
-            if not len(starts):
-                break
-            s = int(rng.choice(starts))
-            taken[s - 1 : s + length + 1, cols] = True
-            fake[s : s + length, cols] = True
-            mine.append((s, s + length))
+            while len(starts) and len(mine) < count:
+                s = int(rng.choice(starts))
+                busy[s - 1 : s + length + 1] = True
+                fake[s : s + length, cols] = True
+                mine.append((s, s + length))
+                starts = starts[np.abs(starts - s) > length + 1]  # the starts whose frames s'-1 … s'+L stay free
         out.append(mine)
     return fake, out
 

@@ -202,10 +202,17 @@ def test_rehearse_is_an_ebd_option_of_whole_numbers():
 
     bad_options = ("ebf:rehearse=2", "ebd:rehearse=-1", "ebd:rehearse=1.5", "ebd:rehearse=true")
     bad_options += ("ebd:rehearse_margin=0", "ebd:rehearse_min_s=-1", "ebf-free:rehearse_margin=0.5")
+    bad_options += ("ebd:rehearse_min_s=inf", "ebd:rehearse_margin=inf", "ebd:rehearse_margin=true")
     for bad in bad_options:
         with pytest.raises(ValueError, match="rehearse"):
             build_method(bad)
     assert as_blend({"rehearsals": 3}).rehearsals == 3
-    for bad in ({"rehearsals": -1}, {"rehearse_margin": 0.0}, {"rehearse_min_s": -0.1}):
-        with pytest.raises(ValueError, match="rehearse"):
+    for bad in (
+        {"rehearsals": -1},
+        {"rehearsals": 2.7},
+        {"rehearsals": True},
+        {"rehearse_margin": 0.0},
+        {"rehearse_min_s": -0.1},
+    ):
+        with pytest.raises(ValueError, match="rehears"):
             as_blend(bad)
