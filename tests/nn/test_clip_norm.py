@@ -211,3 +211,38 @@ def test_ebd_takes_clip_statistics_and_keeps_observed_samples(sample, tiny, batc
     for mode in ("sequence", "windowed"):
         cleaned = clean_channels(model, noisy, mask, sample.skeleton, sample.fps, mode)
         assert np.array_equal(cleaned[~mask], sample.channels[~mask]) and np.isfinite(cleaned).all()
+
+
+@pytest.mark.parametrize("norm", ["clip", "both"])
+def test_nn_ablation_takes_clip_statistics(sample, tiny, batch, norm):
+    """The NN ablation with ``norm`` clip or both (EBF's recipe as it is): its input widens as EBF's does, its
+    output follows a shift of the clip exactly (the clip's own centre; a corpus-normalised one does not), it trains
+    on batches with clip statistics and cleans in both modes."""
+    from mocapnet.nn.base import n_inputs
+
+    model = tiny("nn", sample, norm=norm)
+    n, k = batch["filled"].shape[-1], 2 * model.hparams.half + 1
+    assert model.net[0].in_features == n_inputs(n, norm) * k
+    with torch.no_grad():
+        model.net[-1].bias.normal_(0.0, 0.1)  # the last layer starts at zero: make the output depend on the input
+    model.eval()
+    filled, angvel = batch["filled"], batch["angvel"]
+    shift = torch.linspace(-5.0, 5.0, n)
+    moved = model(filled + shift, angvel) - model(filled, angvel)
+    if norm == "clip":
+        torch.testing.assert_close(moved, shift.expand_as(moved), atol=1e-3, rtol=0)
+    corpus = tiny("nn", sample).eval()
+    with torch.no_grad():
+        corpus.net[-1].bias.copy_(model.net[-1].bias)
+    assert not torch.allclose(corpus(filled + shift, angvel) - corpus(filled, angvel), shift.expand_as(moved), atol=0.1)
+    model.train()
+    loss = model.training_step(batch | clip_statistics(filled, angvel), 0)
+    loss.backward()
+    assert torch.isfinite(loss) and model.net[-1].weight.grad.abs().sum() > 0
+    model.eval()
+    noisy = sample.channels[:300] + np.random.default_rng(0).normal(0.0, 1.0, sample.channels[:300].shape)
+    no_gaps = np.zeros(noisy.shape, dtype=bool)
+    for mode in ("sequence", "windowed"):
+        assert np.isfinite(clean_channels(model, noisy, no_gaps, sample.skeleton, sample.fps, mode)).all()
+    with pytest.raises(ValueError, match="norm"):
+        tiny("nn", sample, norm="neither")
