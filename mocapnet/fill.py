@@ -40,6 +40,12 @@ def mask_groups(mask: np.ndarray) -> dict[bytes, np.ndarray]:
     return {k: np.array(v) for k, v in groups.items()}
 
 
+def gap_list(mask: np.ndarray) -> list[tuple[np.ndarray, int, int]]:
+    """The gaps of ``mask [T, C]`` as ``(channels, first frame, end frame)``: each run of missing frames of the
+    channels that miss together (``mask_groups``), group by group in time order."""
+    return [(cols, a, b) for cols in mask_groups(mask).values() for a, b in runs(mask[:, cols[0]])]
+
+
 def lerp_fill(channels: np.ndarray, mask: np.ndarray) -> np.ndarray:
     """Linear interpolation over the masked samples of ``channels [T, C]`` (mask True = missing).
 
@@ -73,10 +79,9 @@ def gap_fill(
     if spline_max < 1:
         return out
     short = np.zeros(mask.shape, dtype=bool)
-    for cols in mask_groups(mask).values():
-        for a, b in runs(mask[:, cols[0]]):
-            if b - a <= spline_max:
-                short[a:b, cols] = True
+    for cols, a, b in gap_list(mask):
+        if b - a <= spline_max:
+            short[a:b, cols] = True
     cols = np.flatnonzero(short.any(axis=0))
     if cols.size:
         spline = spline_fill(channels[:, cols], mask[:, cols]) if interpolated is None else interpolated[1][:, cols]

@@ -19,7 +19,7 @@ from mocapnet.corpus import load_corpus
 from mocapnet.corrupt import corrupt_motion, seed_for
 from mocapnet.evaluate.metrics import gap_err_deg, wrapped_diff
 from mocapnet.evaluate.results import markdown_table
-from mocapnet.fill import mask_groups, runs
+from mocapnet.fill import gap_list
 from mocapnet.motion import Motion
 
 #: Gap-length bins in frames, inclusive (issue 11: ≤ 5, 5–15, 15–30, 30–60, > 60).
@@ -89,14 +89,13 @@ def bin_errors(items: Sequence[FilledClip], names: Sequence[str]) -> list[dict]:
     count = np.zeros(len(GAP_BINS))
     gaps = np.zeros(len(GAP_BINS), dtype=int)
     for it in items:
-        for cols in mask_groups(it.mask).values():
-            for a, b in runs(it.mask[:, cols[0]]):
-                k = next(i for i, (lo, hi) in enumerate(GAP_BINS) if lo <= b - a <= hi)
-                gaps[k] += 1
-                count[k] += (b - a) * len(cols)
-                truth = it.truth[a:b, cols]
-                for m, name in enumerate(names):
-                    sse[m, k] += float((wrapped_diff(it.outputs[name][a:b, cols], truth) ** 2).sum())
+        for cols, a, b in gap_list(it.mask):
+            k = next(i for i, (lo, hi) in enumerate(GAP_BINS) if lo <= b - a <= hi)
+            gaps[k] += 1
+            count[k] += (b - a) * len(cols)
+            truth = it.truth[a:b, cols]
+            for m, name in enumerate(names):
+                sse[m, k] += float((wrapped_diff(it.outputs[name][a:b, cols], truth) ** 2).sum())
     with np.errstate(invalid="ignore", divide="ignore"):
         rms = np.sqrt(sse / count)
     return [

@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from mocapnet.fill import gap_fill, mask_groups, runs
+from mocapnet.fill import gap_fill, gap_list
 from mocapnet.kinematics import wrap_deg, wrap_near
 from mocapnet.nn.base import NORMS, CleanerModule, n_inputs
 from mocapnet.nn.layers import BLSTM, mlp, tapered
@@ -255,12 +255,6 @@ def blend_gaps(
     return out, fallbacks
 
 
-def gap_list(mask: np.ndarray) -> list[tuple[np.ndarray, int, int]]:
-    """The gaps of ``mask [T, C]`` as ``(channels, first frame, end frame)``: each run of missing frames of the
-    channels that miss together (``fill.mask_groups``), in the order ``blend_gaps`` and ``rehearse`` use."""
-    return [(cols, a, b) for cols in mask_groups(mask).values() for a, b in runs(mask[:, cols[0]])]
-
-
 def stand_in_gaps(
     mask: np.ndarray, count: int, min_frames: float = 0.0, seed: int = 0
 ) -> tuple[np.ndarray, list[list[tuple[int, int]]]]:
@@ -304,7 +298,8 @@ def rehearse(
     the stand-in gaps missing; a gap keeps the blend (``blend_gaps``, self-check included) unless over its
     stand-ins the squared error of the interpolation it would fall back to is below ``blend.rehearse_margin`` ×
     the blend's; gaps without a stand-in keep it (nothing to judge by)."""
-    keep = np.ones(len(gap_list(mask)), dtype=bool)
+    gaps = gap_list(mask)
+    keep = np.ones(len(gaps), dtype=bool)
     if blend.rehearsals <= 0:
         return keep
     fake, stand_ins = stand_in_gaps(mask, blend.rehearsals, blend.rehearse_min_s * fps)
@@ -314,7 +309,7 @@ def rehearse(
     trial = np.where(both, np.nan, channels)
     base = gap_fill(trial, both, blend.spline_max_s * fps)
     filled = blend_gaps(trial, both, network(both), fps, replace(blend, rehearsals=0))[0]
-    for g, ((cols, _, _), places) in enumerate(zip(gap_list(mask), stand_ins)):
+    for g, ((cols, _, _), places) in enumerate(zip(gaps, stand_ins)):
         if places:
             rows = np.concatenate([np.arange(s, e) for s, e in places])
             truth = channels[rows][:, cols]
