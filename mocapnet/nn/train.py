@@ -140,10 +140,11 @@ def train(cfg: DictConfig) -> Path:
     run_dir.mkdir(parents=True, exist_ok=True)
     (run_dir / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
     data, model = build(cfg)
-    best = ModelCheckpoint(
-        dirpath=ckpt_dir, filename="best", monitor=model.val_metric, mode="min", save_last=True, save_top_k=1
-    )
-    callbacks = [best, LearningRateMonitor()] if cfg.get("logger") else [best]
+    best = ModelCheckpoint(dirpath=ckpt_dir, filename="best", monitor=model.val_metric, mode="min", save_top_k=1)
+    # Lightning >= 2.6 writes ``save_last`` only when the monitored score improves, so a run resumed after a
+    # plateau would lose every epoch since its best: the latest state is a checkpoint of its own, every epoch
+    latest = ModelCheckpoint(dirpath=ckpt_dir, filename="last", save_top_k=1, enable_version_counter=False)
+    callbacks = [best, latest, LearningRateMonitor()] if cfg.get("logger") else [best, latest]
     callbacks += averaging
     logger = hydra.utils.instantiate(cfg.logger, save_dir=str(run_dir)) if cfg.get("logger") else False
     trainer = L.Trainer(**OmegaConf.to_container(cfg.trainer, resolve=True), callbacks=callbacks, logger=logger)

@@ -106,6 +106,20 @@ def test_fixed_seed_is_deterministic_and_resume_matches_uninterrupted_run(tmp_pa
     assert result["monitor"] == "val/angle_err_deg" and Path(result["best"]).exists()
 
 
+def test_last_checkpoint_is_the_latest_epoch_even_when_validation_stops_improving(tmp_path):
+    """With lr=0 the validation score never improves after epoch 0: best.ckpt stays at epoch 0 and last.ckpt
+    (what ``ckpt_path=last`` resumes from) must still hold the last epoch trained."""
+    cfg = compose_cfg(
+        [f"runs_root={tmp_path}", "name=flat", "trainer.max_epochs=3", "model.lr=0.0"] + QUICK + TINY_MODEL["ebf"]
+    )
+    train(cfg)
+    ckpts = tmp_path / "flat" / "checkpoints"
+    assert read_checkpoint(ckpts / "best.ckpt")["epoch"] == 0
+    last = read_checkpoint(ckpts / "last.ckpt")
+    assert last["epoch"] == 2 and last["global_step"] == 6
+    assert sorted(p.name for p in ckpts.iterdir()) == ["best.ckpt", "last.ckpt"]
+
+
 def test_mocapnet_train_runs_in_process_and_writes_under_the_cwd(tmp_path, monkeypatch, capsys):
     from mocapnet.cli import main
 
