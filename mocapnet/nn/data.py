@@ -20,10 +20,12 @@ IK (``corrupt.spatial_noise``); a crop adds that residual at its (nearest, when 
 
 Time warping (``time_warp=(lo, hi)``): each batch is resampled at a rate drawn log-uniformly in ``[lo, hi]``
 (linear interpolation of the unwrapped channels; the root angular velocity is scaled by the rate), so the
-networks see motions played faster and slower than recorded. Left/right mirroring is not offered: Bandai's rest
-skeleton is not mirror-symmetric in its joint frames (left arm bones along +X, right along −X; the legs'
-lateral axis is Y, the shoulders' Z), so a swap would need a per-joint rest-frame correction. A random root
-heading is not needed: the only root input, the hips' angular velocity, is expressed in the hips' own frame.
+networks see motions played faster and slower than recorded. A random root heading is not needed: the only
+root input, the hips' angular velocity, is expressed in the hips' own frame.
+
+Mirroring (``mirror=True``): every training clip is joined by its left/right mirror image (``mocapnet.mirror``:
+the skeleton's per-joint frame reflections are fitted once to the training clips, so rigs whose joint frames
+differ joint to joint, as Bandai's do, mirror exactly), doubling the training motion; validation is unchanged.
 
 Gaps are interpolated before a network sees them (``fill.gap_fill``): by cubic spline for gaps of at most
 ``spline_max_s`` seconds, linearly beyond (0, the default: linearly everywhere). An EBD trained so must be built
@@ -61,6 +63,7 @@ from mocapnet.corrupt import (
 )
 from mocapnet.fill import gap_fill
 from mocapnet.kinematics import wrap_deg
+from mocapnet.mirror import fit_mirror, mirror_motion
 from mocapnet.motion import Motion, Skeleton
 from mocapnet.nn.base import clip_statistics
 from mocapnet.nn.features import (
@@ -286,6 +289,7 @@ class MotionDataModule(L.LightningDataModule):
         holdout_style: str | None = None,
         time_warp: tuple[float, float] | None = None,
         spline_max_s: float = 0.0,
+        mirror: bool = False,
     ) -> None:
         super().__init__()
         self.save_hyperparameters()
@@ -305,6 +309,9 @@ class MotionDataModule(L.LightningDataModule):
         train, val, _ = corpus_splits(hp.corpus, hp.fold, hp.time_split, hp.limit, hp.holdout_style)
         if not train or not val:
             raise ValueError(f"corpus {hp.corpus!r} fold {hp.fold}: empty training or validation split")
+        if hp.mirror:
+            mirror = fit_mirror(train)
+            train = train + [mirror_motion(m, mirror) for m in train]
         skeleton = train[0].skeleton
         self.skeleton_hash = topology_hash(skeleton)
         self.fps = float(train[0].fps)

@@ -79,3 +79,20 @@ def test_time_warped_batches(module: MotionDataModule):
         n = batch["clean"].shape[1]
         assert batch["filled"].shape == batch["mask"].shape == (4, n, module.n_channels)
         assert batch["angvel"].shape == (4, n, 3) and bool(batch["filled"].isfinite().all())
+
+
+def test_mirror_adds_each_training_clip_mirrored_and_leaves_validation_alone(module: MotionDataModule):
+    mirrored = MotionDataModule(
+        corpus="sample", corruptions=("angular-0.3", "spatial-1cm"), mirror=True, batch_size=4, seed=1
+    )
+    mirrored.setup()
+    names = [c.name for c in mirrored.train_clips]
+    assert names == [c.name for c in module.train_clips] + [f"{c.name}#mirror" for c in module.train_clips]
+    assert len(mirrored.spatial[1.0]) == len(names) and len(mirrored.val_batches) == len(module.val_batches)
+    original, flipped = mirrored.train_clips
+    labels = mirrored.channel_labels
+    # CMU's frames are world-aligned: the right upper arm's Z rotation is the left one's, negated
+    left, right = labels.index("LeftArm.Zrotation"), labels.index("RightArm.Zrotation")
+    np.testing.assert_allclose(flipped.scored[:, right], -original.scored[:, left], atol=1e-4)
+    batch = mirrored.sample_batch(np.random.default_rng(0))
+    assert np.isfinite(batch["filled"].numpy()).all()
