@@ -207,6 +207,7 @@ def _single(method: str):
         rehearse: int | None = None,
         rehearse_margin: float | None = None,
         rehearse_min_s: float | None = None,
+        rehearse_mix: int | None = None,
     ):
         """``limit``: EBF's self-check factor (``infer.limit_change``; default: the checkpoint's, 0: off).
         ``tta``: the self-ensemble (``tta_passes``). ``blend``: an angle method whose output is averaged with
@@ -235,15 +236,18 @@ def _single(method: str):
                 ("rehearsals", rehearse),
                 ("rehearse_margin", rehearse_margin),
                 ("rehearse_min_s", rehearse_min_s),
+                ("rehearse_mix", rehearse_mix),
             )
             if v is not None
         }
         if rehearse is not None and (isinstance(rehearse, bool) or not isinstance(rehearse, int)):
             raise ValueError(f"{method}: rehearse is a whole number of stand-in gaps, got {rehearse!r}")
         if any(isinstance(v, (bool, str)) for v in rehearsal.values()):
-            raise ValueError(f"{method}: rehearse, rehearse_margin and rehearse_min_s take numbers, got {rehearsal}")
+            raise ValueError(
+                f"{method}: rehearse, rehearse_margin, rehearse_min_s and rehearse_mix take numbers, got {rehearsal}"
+            )
         if rehearsal and method != "ebd":
-            raise ValueError(f"{method}: rehearse, rehearse_margin and rehearse_min_s are EBD options")
+            raise ValueError(f"{method}: rehearse, rehearse_margin, rehearse_min_s, rehearse_mix are EBD options")
         if rehearsal:
             try:
                 checked = as_blend(rehearsal)

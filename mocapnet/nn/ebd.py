@@ -139,6 +139,8 @@ class GapBlend:
     channel, in degrees per frame (``speed_factor = inf`` turns the self-check off). ``rehearsals``: stand-in gaps
     per gap for the rehearsal check (``rehearse``; 0: off); a gap goes to the interpolation when its stand-ins'
     error is below ``rehearse_margin`` × the blend's; gaps shorter than ``rehearse_min_s`` are not rehearsed.
+    ``rehearse_mix``: instead of that verdict, each gap keeps the share of the network's correction to the
+    interpolation that fitted its stand-ins best (least squares, clipped to [0, 1]; ``rehearse_margin`` unused).
     """
 
     spline_max_s: float = 0.5
@@ -149,6 +151,7 @@ class GapBlend:
     rehearsals: int = 0
     rehearse_margin: float = 1.0
     rehearse_min_s: float = 0.0
+    rehearse_mix: bool = False
 
 
 #: The shipped setting: the blend chosen on bandai2 fold 1 (``scripts/bench_ebd.py --tune``), and the rehearsal
@@ -164,11 +167,18 @@ def _whole(value: Any) -> int:
     return int(float(value))
 
 
+def _flag(value: Any) -> bool:
+    """``value`` as a bool if it is one, or 0 / 1, else ValueError."""
+    if isinstance(value, (bool, np.bool_)) or value in (0, 1):
+        return bool(value)
+    raise ValueError(f"rehearse_mix must be true/false (or 0/1), got {value!r}")
+
+
 def as_blend(settings: Mapping[str, Any]) -> GapBlend:
     """A ``GapBlend`` from its fields as stored in a checkpoint (``gate_s`` as a list); ValueError naming
     what is wrong."""
     try:
-        kinds = {"gate_s": tuple, "rehearsals": _whole}
+        kinds = {"gate_s": tuple, "rehearsals": _whole, "rehearse_mix": _flag}
         blend = GapBlend(**{k: kinds.get(k, float)(v) for k, v in settings.items()})
     except (TypeError, ValueError) as err:
         raise ValueError(f"gap_blend {dict(settings)!r} is not a GapBlend: {err}") from None
@@ -221,8 +231,9 @@ def blend_gaps(
     gaps returned to interpolation by the self-check or by ``trusted``)``. Observed samples are returned unchanged;
     each missing sample becomes ``base + w · (net - base)`` with ``w`` the gate × taper weight of its gap and position.
     ``interpolated``: ``(lerp_fill, spline_fill)`` of ``channels`` when the caller has them (tuning), else
-    computed here. ``trusted [n_gaps]`` (bool, ``gaps`` order; from ``rehearse``): False sends that gap to the
-    interpolation (counted as a fallback). ``blend.rehearsals`` is not used here: the rehearsal needs the network
+    computed here. ``trusted [n_gaps]`` (``gaps`` order; from ``rehearse``): the share of each gap's blend to keep
+    (bool or in [0, 1]); 0 / False sends that gap to the interpolation (counted as a fallback).
+    ``blend.rehearsals`` is not used here: the rehearsal needs the network
     (``rehearse``, run by ``infer.clean_channels``), and its verdicts come in as ``trusted``."""
     out = np.where(mask, np.nan, channels).astype(np.float64)
     spline_max = blend.spline_max_s * fps
@@ -238,7 +249,8 @@ def blend_gaps(
         if np.isnan(base).any():  # no observed sample in these channels: only the network has a value
             out[a:b, cols] = net[a:b, cols]
             continue
-        if trusted is not None and not trusted[g]:
+        share = 1.0 if trusted is None else float(trusted[g])
+        if share <= 0.0:
             out[a:b, cols], fallbacks = base, fallbacks + 1
             continue
         gate = float(np.clip((length - lo) / max(hi - lo, 1e-9), 0.0, 1.0))
@@ -251,6 +263,8 @@ def blend_gaps(
             > max(_cone_excess(base, out[:, cols], a, b, speed[cols]), 0.0) + 1e-6
         ):
             fill, fallbacks = base, fallbacks + 1
+        elif share < 1.0:
+            fill = base + share * (fill - base)
         out[a:b, cols] = fill
     return out, fallbacks
 
@@ -292,14 +306,15 @@ def rehearse(
     blend: GapBlend,
     network: Callable[[np.ndarray], np.ndarray],
 ) -> np.ndarray:
-    """The rehearsal check: which gaps of ``mask [T, C]`` keep the network's blend (``[n_gaps]`` bool,
-    ``gap_list`` order). Each gap gets ``blend.rehearsals`` stand-ins (``stand_in_gaps``) where the truth is the
+    """The rehearsal check: how much of the network's blend each gap of ``mask [T, C]`` keeps (``[n_gaps]`` in
+    [0, 1], ``gap_list`` order: 1 or 0 by the verdict below; with ``blend.rehearse_mix`` the least-squares
+    share). Each gap gets ``blend.rehearsals`` stand-ins (``stand_in_gaps``) where the truth is the
     observed ``channels [T, C]`` (degrees); ``network(mask [T, C]) -> [T, C]`` fills the clip with the real and
     the stand-in gaps missing; a gap keeps the blend (``blend_gaps``, self-check included) unless over its
     stand-ins the squared error of the interpolation it would fall back to is below ``blend.rehearse_margin`` ×
     the blend's; gaps without a stand-in keep it (nothing to judge by)."""
     gaps = gap_list(mask)
-    keep = np.ones(len(gaps), dtype=bool)
+    keep = np.ones(len(gaps))
     if blend.rehearsals <= 0:
         return keep
     fake, stand_ins = stand_in_gaps(mask, blend.rehearsals, blend.rehearse_min_s * fps)
@@ -313,6 +328,12 @@ def rehearse(
         if places:
             rows = np.concatenate([np.arange(s, e) for s, e in places])
             truth = channels[rows][:, cols]
+            if blend.rehearse_mix:
+                step = wrap_deg(filled[rows][:, cols] - base[rows][:, cols])
+                power = float((step**2).sum())
+                fit = float((step * wrap_deg(truth - base[rows][:, cols])).sum()) / power if power > 0 else 1.0
+                keep[g] = min(max(fit, 0.0), 1.0)
+                continue
             err = [float((wrap_deg(x[rows][:, cols] - truth) ** 2).sum()) for x in (filled, base)]
-            keep[g] = err[1] >= blend.rehearse_margin * err[0]
+            keep[g] = float(err[1] >= blend.rehearse_margin * err[0])
     return keep

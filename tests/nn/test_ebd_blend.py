@@ -173,6 +173,32 @@ def test_rehearsal_keeps_the_network_where_it_wins_on_the_stand_ins_and_interpol
     assert (np.abs(out - truth)[300:330, 1:3] < lerp_error + 1e-9).all()  # kept: the blend towards the truth
 
 
+def test_rehearse_mix_keeps_the_share_of_the_correction_that_fits_the_stand_ins():
+    """A network that overshoots the truth by 2x everywhere: the least-squares share on the stand-ins is 1/2,
+    and that share of the real gaps' correction is the truth itself; a gap without stand-ins keeps it all."""
+    from mocapnet.fill import gap_fill
+
+    truth = smooth_channels(600)
+    mask = gap_mask(truth.shape, [(100, 120, [0]), (300, 330, [1, 2]), (590, 600, [3])])
+    channels = np.where(mask, np.nan, truth)
+    full = dataclasses.replace(GAP_BLEND, gate_s=(0.0, 1e-6), taper_s=1e-6, speed_factor=np.inf)
+    blend = dataclasses.replace(full, rehearsals=2, rehearse_mix=True)
+
+    def overshoot(m):
+        base = gap_fill(np.where(m, np.nan, truth), m, blend.spline_max_s * FPS)
+        return base + 2.0 * (truth - base)
+
+    share = rehearse(channels, mask, FPS, blend, overshoot)
+    np.testing.assert_allclose(share, [0.5, 0.5, 1.0])
+    out, fallbacks = blend_gaps(channels, mask, overshoot(mask), FPS, blend, trusted=share)
+    np.testing.assert_allclose(out[:590], truth[:590], atol=1e-9)
+    assert fallbacks == 0
+    # a network that moves away from the truth keeps none of its correction; an exact one keeps all
+    away = rehearse(channels, mask, FPS, blend, lambda m: 2 * gap_fill(np.where(m, np.nan, truth), m, 15) - truth)
+    np.testing.assert_allclose(away, [0.0, 0.0, 1.0])
+    np.testing.assert_allclose(rehearse(channels, mask, FPS, blend, lambda m: truth), [1.0, 1.0, 1.0])
+
+
 def test_rehearse_option_runs_one_more_pass_and_interpolates_the_gaps_it_rejects(sample, monkeypatch):
     from mocapnet.fill import gap_fill
     from mocapnet.methods.registry import build_method
@@ -203,16 +229,22 @@ def test_rehearse_is_an_ebd_option_of_whole_numbers():
     bad_options = ("ebf:rehearse=2", "ebd:rehearse=-1", "ebd:rehearse=1.5", "ebd:rehearse=true")
     bad_options += ("ebd:rehearse_margin=0", "ebd:rehearse_min_s=-1", "ebf-free:rehearse_margin=0.5")
     bad_options += ("ebd:rehearse_min_s=inf", "ebd:rehearse_margin=inf", "ebd:rehearse_margin=true")
+    bad_options += ("ebd:rehearse_mix=2", "ebd:rehearse_mix=0.5", "ebf:rehearse_mix=1")
     for bad in bad_options:
         with pytest.raises(ValueError, match="rehearse"):
             build_method(bad)
     assert as_blend({"rehearsals": 3}).rehearsals == 3
+    assert (
+        as_blend({"rehearse_mix": 1}).rehearse_mix is True and as_blend({"rehearse_mix": False}).rehearse_mix is False
+    )
+    build_method("ebd:rehearse=2,rehearse_mix=1")
     for bad in (
         {"rehearsals": -1},
         {"rehearsals": 2.7},
         {"rehearsals": True},
         {"rehearse_margin": 0.0},
         {"rehearse_min_s": -0.1},
+        {"rehearse_mix": 0.5},
     ):
         with pytest.raises(ValueError, match="rehears"):
             as_blend(bad)
