@@ -12,7 +12,14 @@ PACKAGE = Path(__file__).resolve().parents[1] / "mocapnet"
 # Lowest first. A module belongs to the layer of its longest matching prefix.
 LAYERS: tuple[tuple[str, ...], ...] = (
     ("mocapnet.motion", "mocapnet.threads", "mocapnet.io.atomic", "mocapnet.safe_cache"),
-    ("mocapnet.io", "mocapnet.kinematics", "mocapnet.segments", "mocapnet.fill", "mocapnet.parallel"),
+    (
+        "mocapnet.io",
+        "mocapnet.kinematics",
+        "mocapnet.mirror",
+        "mocapnet.segments",
+        "mocapnet.fill",
+        "mocapnet.parallel",
+    ),
     ("mocapnet", "mocapnet.corrupt", "mocapnet.corpus"),  # the package __init__ re-exports io and motion
     ("mocapnet.nn",),
     ("mocapnet.methods",),
