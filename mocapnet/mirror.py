@@ -20,9 +20,8 @@ and its translation ``t'_j' = A_p(j) t_j``. Every ``A`` is a reflection (det −
 Axis reflections differ from one another by turns of 90° or 180°, so a best choice within 45° of the partner's
 mean is unambiguous even where the clips use the two sides differently (one performer's dominant hand, the
 CMU sample's fingers: 31°). A skeleton whose best choice leaves a mismatch above ``max_mismatch_deg`` (45°,
-the mean rotations) or a bone more
-than 15° from its partner's mirrored direction, or whose names do not pair up, is refused (ValueError):
-mirroring it would invent poses. Bone lengths may differ left to right (a calibrated skeleton): the mirrored
+the mean rotations) or a bone more than 15° from its partner's mirrored direction, or whose names do not pair
+up, is refused (ValueError): mirroring it would invent poses. Bone lengths may differ left to right (a calibrated skeleton): the mirrored
 motion then has the partner's bones, so its positions are the mirror image up to that difference.
 
 The world reflection ``M`` negates the horizontal axis listed first (X unless X is up); up is the axis along
@@ -42,19 +41,15 @@ from scipy.spatial.transform import Rotation
 from mocapnet.kinematics import global_transforms, local_rotations, local_translations, rotation_sequence
 from mocapnet.motion import Motion, Skeleton
 
-_SIDE_SWAPS: tuple[tuple[str, str], ...] = (
-    (r"Left", "Right"),
-    (r"left", "right"),
-    (r"LEFT", "RIGHT"),
-)
+_SIDE_SWAPS: tuple[tuple[str, str], ...] = (("Left", "Right"), ("left", "right"), ("LEFT", "RIGHT"))
 # single-letter side tokens: suffix "_L", prefix "L_", infix "_L_", CMU's "lhumerus", Mixamo-like "LHip"
 _LETTER_PATTERNS = (
     r"(?<=[_.\- ])([LlRr])$",
     r"^([LlRr])(?=[_.\- ])",
     r"(?<=[_.])([LlRr])(?=[_.])",
     r"^([lr])(?=[a-z])",
+    r"^([LR])(?=[A-Z][a-z])",
 )
-_LETTER_PATTERNS += (r"^([LR])(?=[A-Z][a-z])",)
 _FLIP = str.maketrans("LlRr", "RrLl")
 
 MAX_MISMATCH_DEG = 45.0
@@ -90,9 +85,7 @@ def mirror_partners(skeleton: Skeleton) -> np.ndarray:
             raise ValueError(
                 f"mirror: {skeleton.names[j]!r} pairs with {skeleton.names[partner[j]]!r} but their parents do not"
             )
-        if [len(c) for c in skeleton.channels[j]] != [len(c) for c in skeleton.channels[partner[j]]] or sorted(
-            skeleton.channels[j]
-        ) != sorted(skeleton.channels[partner[j]]):
+        if sorted(skeleton.channels[j]) != sorted(skeleton.channels[partner[j]]):
             raise ValueError(f"mirror: {skeleton.names[j]!r} and its partner have different channels")
     if (partner == np.arange(skeleton.n_joints)).all():
         raise ValueError(f"mirror: no left/right joint pairs in {skeleton.describe()}")
