@@ -22,7 +22,8 @@ mean is unambiguous even where the clips use the two sides differently (one perf
 CMU sample's fingers: 31°). A skeleton whose best choice leaves a mismatch above ``max_mismatch_deg`` (45°,
 the mean rotations) or a bone more than 15° from its partner's mirrored direction, or whose names do not pair
 up, is refused (ValueError): mirroring it would invent poses. Bone lengths may differ left to right (a
-calibrated skeleton): the mirrored motion then has the partner's bones, so its positions are the mirror image up to that difference.
+calibrated skeleton): the mirrored motion then has the partner's bones, so its positions are the mirror image
+up to that difference.
 
 The world reflection ``M`` negates the horizontal axis listed first (X unless X is up); up is the axis along
 which the body extends furthest on average over the clips' frames.
