@@ -139,8 +139,10 @@ class GapBlend:
     channel, in degrees per frame (``speed_factor = inf`` turns the self-check off). ``rehearsals``: stand-in gaps
     per gap for the rehearsal check (``rehearse``; 0: off); a gap goes to the interpolation when its stand-ins'
     error is below ``rehearse_margin`` × the blend's; gaps shorter than ``rehearse_min_s`` are not rehearsed.
-    ``rehearse_mix``: instead of that verdict, each gap keeps the share of the network's correction to the
-    interpolation that fitted its stand-ins best (least squares, clipped to [0, 1]; ``rehearse_margin`` unused).
+    ``rehearse_mix``: instead of that verdict, each gap at least ``gate_s[1]`` long (where the network has its
+    full weight) keeps the share of the network's correction to the interpolation that fitted its stand-ins
+    best (least squares, clipped to [0, 1]); shorter gaps, whose small correction makes that share noisy, keep
+    the verdict.
     """
 
     spline_max_s: float = 0.5
@@ -307,12 +309,13 @@ def rehearse(
     network: Callable[[np.ndarray], np.ndarray],
 ) -> np.ndarray:
     """The rehearsal check: how much of the network's blend each gap of ``mask [T, C]`` keeps (``[n_gaps]`` in
-    [0, 1], ``gap_list`` order: 1 or 0 by the verdict below; with ``blend.rehearse_mix`` the least-squares
-    share). Each gap gets ``blend.rehearsals`` stand-ins (``stand_in_gaps``) where the truth is the
-    observed ``channels [T, C]`` (degrees); ``network(mask [T, C]) -> [T, C]`` fills the clip with the real and
-    the stand-in gaps missing; a gap keeps the blend (``blend_gaps``, self-check included) unless over its
-    stand-ins the squared error of the interpolation it would fall back to is below ``blend.rehearse_margin`` ×
-    the blend's; gaps without a stand-in keep it (nothing to judge by)."""
+    [0, 1], ``gap_list`` order). Each gap gets ``blend.rehearsals`` stand-ins (``stand_in_gaps``) where the
+    truth is the observed ``channels [T, C]`` (degrees); ``network(mask [T, C]) -> [T, C]`` fills the clip with
+    the real and the stand-in gaps missing. A gap keeps all of the blend (``blend_gaps``, self-check included)
+    unless over its stand-ins the squared error of the interpolation it would fall back to is below
+    ``blend.rehearse_margin`` × the blend's (then none); with ``blend.rehearse_mix`` a gap at least
+    ``blend.gate_s[1]`` long keeps instead the least-squares share of the blend's correction to the
+    interpolation on its stand-ins. Gaps without a stand-in keep it all (nothing to judge by)."""
     gaps = gap_list(mask)
     keep = np.ones(len(gaps))
     if blend.rehearsals <= 0:
@@ -324,11 +327,11 @@ def rehearse(
     trial = np.where(both, np.nan, channels)
     base = gap_fill(trial, both, blend.spline_max_s * fps)
     filled = blend_gaps(trial, both, network(both), fps, replace(blend, rehearsals=0))[0]
-    for g, ((cols, _, _), places) in enumerate(zip(gaps, stand_ins)):
+    for g, ((cols, a, b), places) in enumerate(zip(gaps, stand_ins)):
         if places:
             rows = np.concatenate([np.arange(s, e) for s, e in places])
             truth = channels[rows][:, cols]
-            if blend.rehearse_mix:
+            if blend.rehearse_mix and b - a >= blend.gate_s[1] * fps:
                 step = wrap_deg(filled[rows][:, cols] - base[rows][:, cols])
                 power = float((step**2).sum())
                 fit = float((step * wrap_deg(truth - base[rows][:, cols])).sum()) / power if power > 0 else 1.0

@@ -197,6 +197,11 @@ def test_rehearse_mix_keeps_the_share_of_the_correction_that_fits_the_stand_ins(
     away = rehearse(channels, mask, FPS, blend, lambda m: 2 * gap_fill(np.where(m, np.nan, truth), m, 15) - truth)
     np.testing.assert_allclose(away, [0.0, 0.0, 1.0])
     np.testing.assert_allclose(rehearse(channels, mask, FPS, blend, lambda m: truth), [1.0, 1.0, 1.0])
+    # gaps shorter than the gate's end (0.2 s = 6 frames; the network has part of the weight) keep the verdict
+    gated = dataclasses.replace(GAP_BLEND, rehearsals=2, rehearse_mix=True, speed_factor=np.inf)
+    short = gap_mask(truth.shape, [(100, 104, [0]), (300, 330, [1, 2])])
+    shares = rehearse(np.where(short, np.nan, truth), short, FPS, gated, overshoot)
+    assert shares[0] in (0.0, 1.0) and 0.0 < shares[1] < 1.0
 
 
 def test_rehearse_option_runs_one_more_pass_and_interpolates_the_gaps_it_rejects(sample, monkeypatch):
