@@ -52,7 +52,8 @@ _HELP = (
     "tta=reverse|warp|reverse+warp (self-ensemble), blend=METHOD (mean with an angle method){extra}"
 )
 _EBD_EXTRA = (
-    ", rehearse=N (per gap N stand-in gaps where the truth is known; the gap is interpolated if the network lost there)"
+    ", rehearse=N (per gap N stand-in gaps where the truth is known; a gap keeps the share of the network's correction"
+    " that fitted them), rehearse_mix=0 (all or nothing: interpolate the gaps where the network lost)"
 )
 _HELP_PAIR = "{what}; checkpoints: EBD,EBF, default: the shipped ones for the skeleton; option mode=sequence|windowed"
 _INDEX = Path(__file__).resolve().parents[1] / "checkpoints" / "index.json"

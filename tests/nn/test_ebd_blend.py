@@ -149,7 +149,7 @@ def test_rehearsal_keeps_the_network_where_it_wins_on_the_stand_ins_and_interpol
     truth = smooth_channels(600)
     mask = gap_mask(truth.shape, [(100, 120, [0]), (300, 330, [1, 2]), (590, 600, [3])])
     channels = np.where(mask, np.nan, truth)
-    blend = dataclasses.replace(GAP_BLEND, rehearsals=2, rehearse_margin=1.0, speed_factor=np.inf)
+    blend = dataclasses.replace(GAP_BLEND, rehearsals=2, rehearse_margin=1.0, rehearse_mix=False, speed_factor=np.inf)
     good = rehearse(channels, mask, FPS, blend, lambda m: truth)
     np.testing.assert_array_equal(good, [True, True, True])
 
@@ -216,7 +216,7 @@ def test_rehearse_option_runs_one_more_pass_and_interpolates_the_gaps_it_rejects
     passes = []
     run = infer._network_output
     monkeypatch.setattr(infer, "_network_output", lambda *a: passes.append(a[2].sum()) or run(*a))
-    rehearsed = build_method("ebd:rehearse=2").clean(motion, mask)
+    rehearsed = build_method("ebd:rehearse=2,rehearse_mix=0").clean(motion, mask)
     assert len(passes) == 2 and passes[1] > passes[0]  # the second pass hides the stand-ins as well
     np.testing.assert_array_equal(rehearsed[~mask], noisy[~mask])
     changed = np.flatnonzero((rehearsed != plain).any(axis=0))
@@ -225,6 +225,13 @@ def test_rehearse_option_runs_one_more_pass_and_interpolates_the_gaps_it_rejects
     for c in changed:  # ... and each changed sample is that interpolation
         moved = rehearsed[:, c] != plain[:, c]
         np.testing.assert_allclose(rehearsed[moved, c], base[moved, c])
+    # the shipped share: every sample lies between the blend and the interpolation, observed ones unchanged
+    shared = build_method("ebd:rehearse=2").clean(motion, mask)
+    np.testing.assert_array_equal(shared[~mask], noisy[~mask])
+    lo, hi = np.minimum(plain, base) - 1e-9, np.maximum(plain, base) + 1e-9
+    assert ((shared >= lo) & (shared <= hi))[mask].all()
+    partial = (np.abs(shared - plain) > 1e-6) & (np.abs(shared - base) > 1e-6)
+    assert partial.any()  # some gaps keep part of the correction
 
 
 def test_rehearse_is_an_ebd_option_of_whole_numbers():
