@@ -1,0 +1,39 @@
+"""Training speed on this machine's accelerator (``mocapnet.evaluate.train_speed``): a smoke run of every network,
+then steps/s of the shipped EBF's architecture on the CPU (1 thread) and on the GPU at batch 32 and 256.
+
+    python scripts/bench_train_speed.py --out benchmarks/results/train_speed     # needs a CUDA GPU
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+from pathlib import Path
+
+import torch
+
+from mocapnet.evaluate.results import provenance, write_results
+from mocapnet.evaluate.train_speed import markdown, smoke, step_rates
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--out", default=os.path.join("benchmarks", "results", "train_speed"))
+    parser.add_argument("--runs-root", default="runs/train_speed", help="where the smoke runs write")
+    parser.add_argument("--commit", help="the commit measured, when this checkout has no git history (a copy)")
+    args = parser.parse_args(argv)
+    if not torch.cuda.is_available():
+        parser.error("no CUDA GPU here: this benchmark compares the CPU with a GPU")
+    result = {**provenance(argv), "load": ", ".join(f"{x:.1f}" for x in os.getloadavg())}
+    if args.commit:
+        result["git_commit"] = args.commit
+    result["device"] = torch.cuda.get_device_name(0)
+    result["smoke"] = smoke(Path(args.runs_root), "gpu")
+    result["rates"] = step_rates()
+    write_results(args.out, result, markdown(result), indent=1)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
