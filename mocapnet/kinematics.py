@@ -151,6 +151,15 @@ def rest_positions(skeleton: Skeleton) -> np.ndarray:
     return np.concatenate([pos, ends])
 
 
+def other_euler_solution(angles_deg: np.ndarray, seq: str) -> np.ndarray:
+    """The other 3-axis Euler solution ``[..., 3]`` (degrees) of the same rotations as ``angles_deg [..., 3]``:
+    ``(a + 180, 180 - b, c + 180)`` for Tait-Bryan ``seq`` (three different axes), ``(a + 180, -b, c + 180)``
+    for proper Euler (first axis = last)."""
+    alt = angles_deg + np.array([180.0, 0.0, 180.0])
+    alt[..., 1] = (180.0 - angles_deg[..., 1]) if seq[0] != seq[2] else -angles_deg[..., 1]
+    return alt
+
+
 def matrix_to_euler(matrices: np.ndarray, seq: str, reference: np.ndarray | None = None) -> np.ndarray:
     """Euler angles ``[T, len(seq)]`` (degrees, intrinsic ``seq``) of rotation matrices ``[T, 3, 3]``.
 
@@ -169,10 +178,7 @@ def matrix_to_euler(matrices: np.ndarray, seq: str, reference: np.ndarray | None
 
     best = near(ang)
     if len(seq) == 3:
-        # The other solution: (a + 180, 180 - b, c + 180) for Tait-Bryan, (a + 180, -b, c + 180) for proper.
-        alt = ang + np.array([180.0, 0.0, 180.0])
-        alt[:, 1] = (180.0 - ang[:, 1]) if seq[0] != seq[2] else -ang[:, 1]
-        alt = near(alt)
+        alt = near(other_euler_solution(ang, seq))
         use_alt = np.abs(alt - ref).sum(axis=1) < np.abs(best - ref).sum(axis=1)
         best[use_alt] = alt[use_alt]
     return best

@@ -8,14 +8,14 @@ joint to joint (its left arm bones point along +X and the right along −X, the 
 shoulders' Z), so each joint ``j`` needs its own reflection ``A_j`` of its frame.
 
 With ``M`` the world reflection and ``p(j)`` the parent, the mirrored global rotation of the partner ``j'`` is
-``G'_j' = M G_j A_j``, so its local rotation is ``R'_j' = A_p(j) R_j A_j`` (with ``A_p = M`` above the root)
-and its translation ``t'_j' = A_p(j) t_j``. Every ``A`` is a reflection (det −1), so ``R'`` is a rotation and
+``G'_j' = M G_j A_j``, so its local rotation is ``R'_j' = A_p(j)^T R_j A_j`` (with ``A_p = M`` above the root)
+and its translation ``t'_j' = A_p(j)^T t_j``. Every ``A`` is a reflection (det −1), so ``R'`` is a rotation and
 ``M`` maps every joint position exactly onto its partner's mirrored position: the test that counts.
 
 ``A_j`` is chosen per joint among the 24 axis reflections (signed permutations with det −1), top-down:
-1. the translations it must carry: ``A_p(j)`` maps each child ``c``'s rest offset (or mean position channels)
+1. the translations it must carry: ``A_j^T`` maps each child ``c``'s rest offset (or mean position channels)
    onto the partner child's;
-2. the rotations: the mean of the mirrored local rotations ``A_p R_j A_j`` over the given clips should be the
+2. the rotations: the mean of the mirrored local rotations ``A_p^T R_j A_j`` over the given clips should be the
    mean of the partner's own ``R_j'`` (a rig's joint frames are conventions, the data shows them).
 Axis reflections differ from one another by turns of 90° or 180°, so a best choice within 45° of the partner's
 mean is unambiguous even where the clips use the two sides differently (one performer's dominant hand, the
@@ -26,7 +26,8 @@ calibrated skeleton): the mirrored motion then has the partner's bones, so its p
 up to that difference.
 
 The world reflection ``M`` negates the horizontal axis listed first (X unless X is up); up is the axis along
-which the body extends furthest on average over the clips' frames.
+which the body (the joints from the hips down, not a reference root left at the origin) extends furthest on
+average over the clips' frames.
 """
 
 from __future__ import annotations
@@ -39,15 +40,23 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from mocapnet.kinematics import global_transforms, local_rotations, local_translations, rotation_sequence
+from mocapnet.kinematics import (
+    global_transforms,
+    local_rotations,
+    local_translations,
+    other_euler_solution,
+    rotation_sequence,
+    wrap_near,
+)
 from mocapnet.motion import Motion, Skeleton
 
 _SIDE_SWAPS: tuple[tuple[str, str], ...] = (("Left", "Right"), ("left", "right"), ("LEFT", "RIGHT"))
-# single-letter side tokens: suffix "_L", prefix "L_", infix "_L_", CMU's "lhumerus", Mixamo-like "LHip"
+# single-letter side tokens: suffix "_L", prefix "L_", infix "_L_" or 3ds Max's "Bip01 L Thigh", CMU's "lhumerus",
+# "LHip"; a midline name may give a candidate too ("root" -> "loot"), which pairs only if that joint exists
 _LETTER_PATTERNS = (
     r"(?<=[_.\- ])([LlRr])$",
     r"^([LlRr])(?=[_.\- ])",
-    r"(?<=[_.])([LlRr])(?=[_.])",
+    r"(?<=[_.\- ])([LlRr])(?=[_.\- ])",
     r"^([lr])(?=[a-z])",
     r"^([LR])(?=[A-Z][a-z])",
 )
@@ -78,6 +87,8 @@ def mirror_partners(skeleton: Skeleton) -> np.ndarray:
         found = [index[n] for n in _swapped_names(name) if n in index]
         if found:
             partner[j] = found[0]
+        elif any(word in name for pair in _SIDE_SWAPS for word in pair):
+            raise ValueError(f"mirror: {name!r} is a side joint with no partner on the other side")
     for j in range(skeleton.n_joints):
         if partner[partner[j]] != j:
             raise ValueError(f"mirror: joints {skeleton.names[j]!r} and {skeleton.names[partner[j]]!r} do not pair")
@@ -141,7 +152,7 @@ class MirrorMap:
 def _offset_error(reflection: np.ndarray, offset: np.ndarray, partner_offset: np.ndarray) -> float:
     """Angle (degrees) between ``reflection @ offset`` and ``partner_offset``; 0 when either is a zero offset
     (bone lengths may differ left to right, as in a calibrated skeleton: the directions must agree)."""
-    a, b = reflection @ offset, partner_offset
+    a, b = reflection.T @ offset, partner_offset
     norm = np.linalg.norm(a) * np.linalg.norm(b)
     if norm <= 1e-12:
         return 0.0
@@ -166,7 +177,8 @@ def fit_mirror(motions: Sequence[Motion], max_mismatch_deg: float = MAX_MISMATCH
     channels = np.concatenate([m.channels[::stride] for m in motions])
     rot_l = local_rotations(skeleton, channels)
     rot_g, pos_g = global_transforms(skeleton, channels, rot_l)
-    up = _up_axis(pos_g)
+    body = [j for j in range(skeleton.n_joints) if j not in skeleton.context_joints[:-1]]  # no reference root
+    up = _up_axis(pos_g[:, body])
     world = np.eye(3)
     lateral = next(a for a in range(3) if a != up)
     world[lateral, lateral] = -1.0
@@ -187,13 +199,14 @@ def fit_mirror(motions: Sequence[Motion], max_mismatch_deg: float = MAX_MISMATCH
             )
     # Joints that carry the heading (the root chain to the hips) have a mean rotation that depends on where the
     # performer faced: they must keep the world's up direction seen in their frame (``G_j^T up``, which the
-    # mirror maps to ``A_j G_j^T up``); every reflection that does within ``max_mismatch_deg`` is tried, the rest
+    # mirror maps to ``A_j^T G_j^T up``); every reflection that does within ``max_mismatch_deg`` is tried, the rest
     # of the tree is then chosen joint by joint, and the assignment with the smallest total mismatch wins.
-    heading = list(skeleton.context_joints)
+    rotates = [bool(skeleton.rotation_mask[skeleton.joint_channels(j)].any()) for j in range(skeleton.n_joints)]
+    heading = [j for j in skeleton.context_joints if rotates[j]]
     options = []
     for j in heading:
         u, v = rot_g[:, j, up, :].mean(axis=0), rot_g[:, partner[j], up, :].mean(axis=0)
-        cos = (candidates @ u) @ v / max(np.linalg.norm(u) * np.linalg.norm(v), 1e-12)
+        cos = (np.swapaxes(candidates, -1, -2) @ u) @ v / max(np.linalg.norm(u) * np.linalg.norm(v), 1e-12)
         err = np.where(allowed[j], np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))), np.inf)
         options.append([(int(i), float(err[i])) for i in np.flatnonzero(err <= max(err.min(), max_mismatch_deg))])
     means = np.array([_mean_rotation(rot_l[:, j]) for j in range(skeleton.n_joints)])
@@ -204,18 +217,26 @@ def fit_mirror(motions: Sequence[Motion], max_mismatch_deg: float = MAX_MISMATCH
         forced = dict(zip(heading, choice))
         for j in range(skeleton.n_joints):  # parents come before children
             a_p = world if skeleton.parents[j] < 0 else frames[skeleton.parents[j]]
-            if j in forced:
+            if not rotates[j]:  # its rotation is the identity and must stay so: A_j = A_p
+                pick = int(np.flatnonzero((candidates == a_p).all(axis=(1, 2)))[0])
+                mismatch[j] = 0.0 if allowed[j, pick] else np.inf
+            elif j in forced:
                 pick, mismatch[j] = forced[j]
             else:
-                errors = np.where(allowed[j], _angles_deg(a_p @ means[j] @ candidates, means[partner[j]]), np.inf)
+                errors = np.where(allowed[j], _angles_deg(a_p.T @ means[j] @ candidates, means[partner[j]]), np.inf)
                 pick = int(np.argmin(errors))
-                mismatch[j] = errors[pick] if skeleton.rotation_mask[skeleton.joint_channels(j)].any() else 0.0
+                mismatch[j] = errors[pick]
             frames[j] = candidates[pick]
         total = float(mismatch.sum())
         if best is None or total < best[0]:
             best = (total, frames, mismatch)
     _, frames, mismatch = best  # type: ignore[misc]
     worst = int(np.argmax(mismatch))
+    if not np.isfinite(mismatch[worst]):
+        raise ValueError(
+            f"mirror: {skeleton.names[worst]!r} has no rotation channels, and the bones below it are not mirror "
+            "images in its parent's mirrored frame"
+        )
     if mismatch[worst] > max_mismatch_deg:
         raise ValueError(
             f"mirror: {skeleton.names[worst]!r} mirrored is {mismatch[worst]:.1f}° from "
@@ -231,13 +252,11 @@ def _continuous_euler(matrices: np.ndarray, seq: str, start: np.ndarray) -> np.n
     """Euler angles ``[T, 3]`` of ``matrices [T, 3, 3]``: the first frame on the solution (of the two) nearest
     ``start [3]``, each later one nearest the previous frame's, wrapped to within 180° of it (continuous)."""
     ang = Rotation.from_matrix(matrices).as_euler(seq, degrees=True)
-    alt = ang + np.array([180.0, 0.0, 180.0])
-    alt[:, 1] = (180.0 - ang[:, 1]) if seq[0] != seq[2] else -ang[:, 1]
+    alt = other_euler_solution(ang, seq)
     out = np.empty_like(ang)
     prev = np.asarray(start, dtype=np.float64)
     for t in range(len(ang)):
-        a = prev + (ang[t] - prev + 180.0) % 360.0 - 180.0
-        b = prev + (alt[t] - prev + 180.0) % 360.0 - 180.0
+        a, b = wrap_near(ang[t], prev), wrap_near(alt[t], prev)
         prev = out[t] = a if np.abs(a - prev).sum() <= np.abs(b - prev).sum() else b
     return out
 
@@ -258,16 +277,19 @@ def mirror_motion(motion: Motion, mirror: MirrorMap) -> Motion:
         seq, cols_j = rotation_sequence(skeleton, j)
         if len(seq):
             seq_q, cols_q = rotation_sequence(skeleton, q)
-            if len(seq) != 3:
-                raise ValueError(f"{motion.name}: mirroring needs 3 rotation channels per joint ({skeleton.names[j]})")
             sign = _sign_flips(a_p, a_j, seq) if seq_q == seq else None
             if sign is not None:
                 out[:, cols_q] = motion.channels[:, cols_j] * sign
+            elif len(seq) != 3:
+                raise ValueError(
+                    f"{motion.name}: {skeleton.names[j]} has {len(seq)} rotation channels and its mirrored rotation is "
+                    "not a sign change of them (mirroring re-expresses it with all 3)"
+                )
             else:
-                out[:, cols_q] = _continuous_euler(a_p @ rot_l[:, j] @ a_j, seq_q, mirror.typical_deg[cols_q])
+                out[:, cols_q] = _continuous_euler(a_p.T @ rot_l[:, j] @ a_j, seq_q, mirror.typical_deg[cols_q])
         sel = pos_joints == q
         if sel.any():
-            moved = trans_l[:, j] @ a_p.T
+            moved = trans_l[:, j] @ a_p  # rows of A_p^T t
             out[:, pos_cols[sel]] = moved[:, pos_axes[sel]]
     return replace(motion, channels=out, name=f"{motion.name}#mirror")
 

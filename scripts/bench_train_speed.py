@@ -1,5 +1,6 @@
 """Training speed on this machine's accelerator (``mocapnet.evaluate.train_speed``): a smoke run of every network,
-then steps/s of the shipped EBF's architecture on the CPU (1 thread) and on the GPU at batch 32 and 256.
+then steps/s of the shipped EBF's architecture on the CPU (1 thread) and on the GPU at batch 32 and 256 (1 and 8
+torch threads).
 
     python scripts/bench_train_speed.py --out benchmarks/results/train_speed     # needs a CUDA GPU
 """

@@ -77,6 +77,24 @@ def _motion(seed: int = 0, frames: int = 600, conventions: bool = True) -> Motio
     return motion
 
 
+def _assert_mirrored(motion: Motion, mirror) -> Motion:
+    """``motion`` mirrored, checked: every joint at the reflection of its partner, twice = the same rotations."""
+    mirrored = mirror_motion(motion, mirror)
+    expected = (joint_positions(motion) @ mirror.world.T)[:, mirror.partner]
+    np.testing.assert_allclose(joint_positions(mirrored), expected, atol=1e-9)
+    twice = local_rotations(motion.skeleton, mirror_motion(mirrored, mirror).channels)
+    np.testing.assert_allclose(twice, local_rotations(motion.skeleton, motion.channels), atol=1e-9)
+    return mirrored
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_any_per_joint_frame_convention_mirrors_exactly(seed):
+    """Random per-joint frames need reflections that are not their own inverse (rotoreflections) as often as
+    not: the local rotation is ``A_p^T R A_j``, not ``A_p R A_j``."""
+    motion = _motion(seed=seed)
+    _assert_mirrored(motion, fit_mirror([motion]))
+
+
 @pytest.mark.parametrize("conventions", [False, True])
 def test_mirrored_positions_are_the_reflection_with_sides_swapped(conventions):
     motion = _motion(conventions=conventions)
@@ -129,8 +147,12 @@ def test_skeletons_that_cannot_be_mirrored_are_refused():
     names = [b[0] for b in BODY]
     with pytest.raises(ValueError, match="no left/right"):
         mirror_partners(_skeleton(names=[n.replace("Left", "A").replace("Right", "B") for n in names]))
-    with pytest.raises(ValueError, match="parents"):
+    with pytest.raises(ValueError, match="'LeftArm' is a side joint with no partner"):
         mirror_partners(_skeleton(names=[n.replace("RightArm", "OtherArm") for n in names]))
+    with pytest.raises(ValueError, match="parents"):  # partners whose parents are not partners
+        mirror_partners(
+            _skeleton(names=[{"LeftForeArm": "LeftLeg", "LeftLeg": "LeftForeArm"}.get(n, n) for n in names])
+        )
     motion = _motion(conventions=False)
     bent = motion.skeleton.offsets.copy()
     bent[6] = (0, 9, 0)  # right forearm at 90° from the mirrored left one
@@ -155,3 +177,58 @@ def test_bandai_rig_mirrors_exactly(shared):
     assert mirror.mismatch_deg.max() < 45.0
     _, pos = global_transforms(clips[0].skeleton, clips[0].channels[:1])
     assert pos.shape[1] == len(mirror.partner)
+
+
+def _under_reference(motion: Motion, shift: np.ndarray | None = None) -> Motion:
+    """``motion`` under a position-only "Reference" root (a common export layout), moved by ``shift [T, 3]``
+    (via the hips' translation) while the reference stays at the origin."""
+    sk = motion.skeleton
+    names = ("Reference",) + sk.names
+    parents = (-1,) + tuple(p + 1 for p in sk.parents)
+    channels = (("Xposition", "Yposition", "Zposition"),) + sk.channels
+    out = np.concatenate([np.zeros((motion.n_frames, 3)), motion.channels], axis=1)
+    if shift is not None:
+        out[:, 3:6] += shift
+    return Motion(Skeleton(names, parents, np.vstack([np.zeros(3), sk.offsets]), channels), out, 30.0, "ref")
+
+
+def test_a_position_only_root_keeps_its_parent_frame_and_travel_does_not_turn_the_mirror_over():
+    motion = _under_reference(_motion())
+    mirror = fit_mirror([motion])
+    np.testing.assert_array_equal(mirror.frames[0], mirror.world)  # no rotation channel: A = the world's
+    _assert_mirrored(motion, mirror)
+    # travelling 400 units along X while the reference root stays put: X must not be taken for up
+    far = _under_reference(_motion(conventions=False), np.linspace(0, 400, 600)[:, None] * [1.0, 0.0, 0.0])
+    mirror = fit_mirror([far])
+    assert mirror.world[1, 1] == 1.0 and mirror.world[0, 0] == -1.0
+    _assert_mirrored(far, mirror)
+
+
+def test_left_and_right_may_use_other_rotation_orders_and_fewer_channels():
+    motion = _motion(conventions=False)
+    sk, rot = motion.skeleton, local_rotations(motion.skeleton, motion.channels)
+    orders = list(sk.channels)
+    out = motion.channels.copy()
+    for j in (5, 6):  # the right arm in XYZ order
+        orders[j] = ("Xrotation", "Yrotation", "Zrotation")
+        out[:, sk.joint_channels(j)] = matrix_to_euler(rot[:, j], "XYZ")
+    mixed = Motion(Skeleton(sk.names, sk.parents, sk.offsets, tuple(orders)), out, 30.0, "orders")
+    _assert_mirrored(mixed, fit_mirror([mixed]))
+    # knees with one rotation channel (ASF-style): a sign change, done exactly
+    knees = list(sk.channels)
+    for j in (8, 10):
+        knees[j] = ("Xrotation",)
+    one = Skeleton(sk.names, sk.parents, sk.offsets, tuple(knees))
+    keep = [
+        c for j in range(sk.n_joints) for c in (sk.joint_channels(j)[1:2] if j in (8, 10) else sk.joint_channels(j))
+    ]
+    bent = Motion(one, motion.channels[:, keep], 30.0, "knees")
+    knee_cols = [one.joint_channels(8)[0], one.joint_channels(10)[0]]
+    mirrored = _assert_mirrored(bent, fit_mirror([bent]))
+    np.testing.assert_array_equal(mirrored.channels[:, knee_cols[1]], bent.channels[:, knee_cols[0]])
+
+
+def test_3ds_max_biped_names_pair():
+    names = [b[0].replace("Left", "Bip01 L ").replace("Right", "Bip01 R ") for b in BODY]
+    sk = _skeleton(names=names)
+    assert [sk.names[p] for p in mirror_partners(sk)[[3, 7]]] == ["Bip01 R Arm", "Bip01 R UpLeg"]

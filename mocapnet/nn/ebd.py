@@ -174,7 +174,7 @@ def _flag(value: Any) -> bool:
     """``value`` as a bool if it is one, or 0 / 1, else ValueError."""
     if isinstance(value, (bool, np.bool_)) or value in (0, 1):
         return bool(value)
-    raise ValueError(f"rehearse_mix must be true/false (or 0/1), got {value!r}")
+    raise ValueError(f"rehearse_mix must be 0 or 1, got {value!r}")
 
 
 def as_blend(settings: Mapping[str, Any]) -> GapBlend:
@@ -316,7 +316,8 @@ def rehearse(
     unless over its stand-ins the squared error of the interpolation it would fall back to is below
     ``blend.rehearse_margin`` × the blend's (then none); with ``blend.rehearse_mix`` a gap at least
     ``blend.gate_s[1]`` long keeps instead the least-squares share of the blend's correction to the
-    interpolation on its stand-ins. Gaps without a stand-in keep it all (nothing to judge by)."""
+    interpolation on its stand-ins (all of it when the blend did not move the stand-ins at all). Gaps without a
+    stand-in keep it all (nothing to judge by)."""
     gaps = gap_list(mask)
     keep = np.ones(len(gaps))
     if blend.rehearsals <= 0:
