@@ -332,13 +332,13 @@ def rehearse(
     for g, ((cols, a, b), places) in enumerate(zip(gaps, stand_ins)):
         if places:
             rows = np.concatenate([np.arange(s, e) for s, e in places])
-            truth = channels[rows][:, cols]
+            truth, fill_s, base_s = (x[rows][:, cols] for x in (channels, filled, base))
             if blend.rehearse_mix and b - a >= blend.gate_s[1] * fps:
-                step = wrap_deg(filled[rows][:, cols] - base[rows][:, cols])
+                step = wrap_deg(fill_s - base_s)
                 power = float((step**2).sum())
-                fit = float((step * wrap_deg(truth - base[rows][:, cols])).sum()) / power if power > 0 else 1.0
+                fit = float((step * wrap_deg(truth - base_s)).sum()) / power if power > 0 else 1.0
                 keep[g] = min(max(fit, 0.0), 1.0)
                 continue
-            err = [float((wrap_deg(x[rows][:, cols] - truth) ** 2).sum()) for x in (filled, base)]
+            err = [float((wrap_deg(x - truth) ** 2).sum()) for x in (fill_s, base_s)]
             keep[g] = float(err[1] >= blend.rehearse_margin * err[0])
     return keep
