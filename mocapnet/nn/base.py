@@ -17,6 +17,10 @@ Input normalisation (``norm`` hyper-parameter of the networks that offer it, def
 * ``"both"``: the corpus-normalised and the clip-normalised inputs side by side (corpus first; the clip's
   statistics otherwise, e.g. for the bias bound): relative noise looks alike in every clip, as with ``"clip"``,
   and absolute noise (a fixed number of cm) keeps its size, as with ``"corpus"``.
+
+Angle features (``sincos`` hyper-parameter, default False): with it, the sine and cosine of every scored
+channel (the raw angle, not normalised) follow the normalised inputs: a representation without the ±180° wrap
+that the Euler values have, 2C more columns.
 """
 
 from __future__ import annotations
@@ -38,9 +42,9 @@ NORMS = ("corpus", "clip", "both")
 NORM_KEYS = ("center", "scale", "angvel_scale")
 
 
-def n_inputs(n_channels: int, norm: str) -> int:
+def n_inputs(n_channels: int, norm: str, sincos: bool = False) -> int:
     """Width of ``CleanerModule.input_features`` for ``n_channels`` scored channels."""
-    return (n_channels + 3) * (2 if norm == "both" else 1)
+    return (n_channels + 3) * (2 if norm == "both" else 1) + (2 * n_channels if sincos else 0)
 
 
 def uses_clip_statistics(model: torch.nn.Module) -> bool:
@@ -66,14 +70,18 @@ def input_features_numpy(
     angvel: np.ndarray,
     stats: tuple[np.ndarray, np.ndarray, np.ndarray],
     corpus: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+    sincos: bool = False,
 ) -> np.ndarray:
     """Numpy twin of ``CleanerModule.input_features`` without a mask (the streaming kernels): scored channels
     ``[N, C]`` (degrees) and root angular velocity ``[N, 3]`` (rad/s) → ``[N, n_inputs(C, norm)]`` float32,
     normalised with ``stats`` = ``(center [C], scale [C], angvel_scale [3])`` after the same with ``corpus``
-    (the corpus buffers, for ``norm="both"``) when given."""
+    (the corpus buffers, for ``norm="both"``) when given; then sine and cosine of ``filled`` (``sincos``)."""
     parts = []
     for center, scale, angvel_scale in ([] if corpus is None else [corpus]) + [stats]:
         parts += [np.clip(wrap_deg(filled - center) / scale, -8.0, 8.0), np.clip(angvel / angvel_scale, -8.0, 8.0)]
+    if sincos:
+        rad = np.deg2rad(filled)
+        parts += [np.sin(rad), np.cos(rad)]
     return np.concatenate(parts, axis=-1).astype(np.float32)
 
 
@@ -133,12 +141,16 @@ class CleanerModule(L.LightningModule, ABC):
         """Scored channels ``[..., T, C]`` (degrees) and root angular velocity ``[..., T, 3]`` (rad/s) →
         ``[..., T, n_inputs(C)]``: both normalised with ``stats`` (from ``input_stats``), after the same with
         the corpus buffers for ``norm="both"``. ``mask [..., T, C]`` (EBD) goes between the channels and the
-        angular velocity of the ``stats`` part (C more columns)."""
+        angular velocity of the ``stats`` part (C more columns). With the ``sincos`` hyper-parameter the sine
+        and cosine of ``filled`` come last (2C more columns)."""
         extra = [] if mask is None else [mask.to(filled.dtype)]
-        own = torch.cat([self.normalise(filled, stats), *extra, self.angvel_features(angvel, stats)], dim=-1)
-        if self.hparams.get("norm", "corpus") != "both":
-            return own
-        return torch.cat([self.normalise(filled), self.angvel_features(angvel), own], dim=-1)
+        parts = [self.normalise(filled, stats), *extra, self.angvel_features(angvel, stats)]
+        if self.hparams.get("norm", "corpus") == "both":
+            parts = [self.normalise(filled), self.angvel_features(angvel), *parts]
+        if self.hparams.get("sincos", False):
+            rad = torch.deg2rad(filled)
+            parts += [rad.sin(), rad.cos()]
+        return torch.cat(parts, dim=-1)
 
     def loss_terms(self, batch: dict[str, torch.Tensor], pred: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Squared errors (degrees²) and the boolean selection ``[B, T, C]`` they are averaged over."""

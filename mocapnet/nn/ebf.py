@@ -16,6 +16,7 @@ a filter head of ``head_layers`` tanh layers ends in the filter parameters:
 each clip's own (``base.clip_statistics`` of the noisy input), and then the bias is in units of that clip's
 scale too, so the network sees the same relative noise on a clip of any corpus; ``norm="both"`` gives it both
 inputs side by side (``base.input_features``; a stream takes the running clip statistics for the clip part).
+``sincos=True`` adds the sine and cosine of every scored channel to the inputs (``base.input_features``).
 ``change_limit`` is used at inference only: the self-check factor of ``infer.limit_change`` (0: off), chosen on
 the validation fold and stored with the checkpoint.
 
@@ -69,6 +70,7 @@ class EBF(CleanerModule):
         lr_patience: int = 4,
         lr_schedule: str = "plateau",
         norm: str = "corpus",
+        sincos: bool = False,
         bias_bound: float = 3.0,
         change_limit: float = 0.0,
         skeleton_hash: str = "",
@@ -85,7 +87,7 @@ class EBF(CleanerModule):
         if not bias_bound > 0:
             raise ValueError(f"bias_bound must be positive, got {bias_bound!r}")
         self.save_hyperparameters()
-        n_in = n_inputs(n_channels, norm)
+        n_in = n_inputs(n_channels, norm, sincos)
         encoder = mlp(tapered(n_in, code, encoder_layers), last_activation=True) if encoder_layers else None
         self.encoder = encoder or nn.Identity()
         self.blstm = BLSTM(code if encoder_layers else n_in, hidden, layers=2, dropout=dropout)

@@ -45,7 +45,8 @@ class OnnxKernel:
     """The centre frame of a full window through ONNX Runtime (one thread, the caller's): ``centre(window,
     angvel, stats)`` with scored channels ``[W, C]`` (degrees), root angular velocity ``[W, 3]`` (rad/s) and
     ``(center [C], scale [C], angvel_scale [3])`` → cleaned channels ``[C]`` (float32). A ``norm="both"``
-    network's corpus statistics are constants of the graph; ``stats`` normalise its clip-normalised inputs."""
+    network's corpus statistics are constants of the graph; ``stats`` normalise its clip-normalised inputs; a
+    ``sincos`` network's sine and cosine inputs are computed in the graph."""
 
     def __init__(self, model: EBF) -> None:
         import onnx
@@ -95,6 +96,9 @@ class OnnxKernel:
         if hp.get("norm", "corpus") == "both":
             corpus = [const(f"corpus_{key}", getattr(model, key).numpy()) for key in NORM_KEYS]
             features = normalised(*corpus, "corpus_") + features
+        if hp.get("sincos", False):
+            rad = node("Mul", ["window", const("deg2rad", np.pi / 180.0)], "rad")
+            features += [node("Sin", [rad], "sin"), node("Cos", [rad], "cos")]
         code = dense(node("Concat", features, "feat", axis=1), model.encoder, "enc")
         code = node("Unsqueeze", [code, const("ax1", np.array([1]))], "code")  # [W, 1, F]
         names = [const(f"l0_{k}", v) for k, v in zip("wrb", _lstm_params(lstm, 0, ("", "_reverse")))]

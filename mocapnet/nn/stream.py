@@ -82,6 +82,7 @@ class _CentreKernel:
         self.free, self.has_bias = hp.filter_shape == "free", bool(hp.bias)
         self.bias_bound = float(hp.get("bias_bound", 3.0))
         self.corpus = _corpus_statistics(model) if hp.get("norm", "corpus") == "both" else None
+        self.sincos = bool(hp.get("sincos", False))
         self.taps_sq = (np.arange(-self.half, self.half + 1, dtype=np.float32) ** 2)[None, None, :]
         self._half = np.array(0.5, dtype=np.float32)
         self._buffers: dict[int, dict] = {}
@@ -135,7 +136,7 @@ class _CentreKernel:
         scored channels ``[N, C]`` (degrees) and root angular velocity ``[N, 3]`` (rad/s), normalised with
         ``stats`` = ``(center [C], scale [C], angvel_scale [3])`` (float32; beside the corpus buffers for
         ``norm="both"``)."""
-        code = _run_dense(self.encoder, input_features_numpy(scored, angvel, stats, self.corpus))  # [N, F]
+        code = _run_dense(self.encoder, input_features_numpy(scored, angvel, stats, self.corpus, self.sincos))  # [N, F]
         out = code @ self.wih0_t
         out += self.bias0
         return out.reshape(len(out), 4, 2, self.hidden)

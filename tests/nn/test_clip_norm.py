@@ -185,6 +185,41 @@ def test_norm_both_feeds_corpus_then_clip_inputs_and_cleans(sample, tiny, batch,
         tiny("ebf-free", sample, norm="neither")
 
 
+@pytest.mark.parametrize("norm", ["corpus", "both"])
+def test_sincos_appends_the_angles_sine_and_cosine_and_round_trips(sample, tiny, batch, norm, tmp_path):
+    """``sincos=True``: the encoder input is the plain one followed by sin and cos of the raw angles (2C more
+    columns, for any ``norm``); it trains, cleans in both modes and survives a checkpoint round trip."""
+    from mocapnet.nn.base import n_inputs
+    from mocapnet.nn.infer import load_model
+
+    plain, model = tiny("ebf-free", sample, norm=norm), tiny("ebf-free", sample, norm=norm, sincos=True).eval()
+    n = batch["filled"].shape[-1]
+    assert model.encoder[0].in_features == n_inputs(n, norm, sincos=True) == n_inputs(n, norm) + 2 * n
+    stats = clip_statistics(batch["filled"], batch["angvel"])
+    features = model.features(batch["filled"], batch["angvel"], stats)
+    width = n_inputs(n, norm)
+    torch.testing.assert_close(features[..., :width], plain.features(batch["filled"], batch["angvel"], stats))
+    rad = torch.deg2rad(batch["filled"])
+    torch.testing.assert_close(features[..., width:], torch.cat([rad.sin(), rad.cos()], -1))
+    model.train()
+    loss = model.training_step(batch | stats, 0)
+    loss.backward()
+    assert torch.isfinite(loss) and model.encoder[0].weight.grad[:, width:].abs().sum() > 0
+    model.eval()
+    path = tmp_path / "sincos.ckpt"
+    torch.save(
+        {"state_dict": model.state_dict(), "hyper_parameters": dict(model.hparams), "mocapnet_model": "EBF"}, path
+    )
+    loaded = load_model(path)
+    assert loaded.hparams.sincos is True
+    noisy = sample.channels + np.random.default_rng(1).normal(0.0, 0.5, sample.channels.shape)
+    mask = np.zeros(noisy.shape, dtype=bool)
+    for mode in ("sequence", "windowed"):
+        out = clean_channels(model, noisy, mask, sample.skeleton, sample.fps, mode)
+        np.testing.assert_allclose(clean_channels(loaded, noisy, mask, sample.skeleton, sample.fps, mode), out)
+        assert out.shape == noisy.shape and np.isfinite(out).all()
+
+
 @pytest.mark.parametrize("norm", ["clip", "both"])
 def test_ebd_takes_clip_statistics_and_keeps_observed_samples(sample, tiny, batch, norm):
     """An EBD with ``norm`` clip or both: its input widens as EBF's does (plus the mask), the correction is in

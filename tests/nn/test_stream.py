@@ -73,11 +73,15 @@ def test_shipped_ebf_streams_as_windowed_mode(backend, sample):
 
 @pytest.mark.parametrize("backend", BACKENDS)
 @pytest.mark.parametrize("length", [20, 80])
-@pytest.mark.parametrize("kind, norm", [("ebf-free", "clip"), ("ebf-free", "both"), ("ebf-bias", "both")])
-def test_stream_with_fixed_statistics_matches_windowed_mode(kind, norm, length, backend, sample, tiny):
+@pytest.mark.parametrize(
+    "kind, norm, sincos",
+    [("ebf-free", "clip", False), ("ebf-free", "both", False), ("ebf-bias", "both", False), ("ebf-free", "both", True)],
+)
+def test_stream_with_fixed_statistics_matches_windowed_mode(kind, norm, sincos, length, backend, sample, tiny):
     """Given the whole clip's statistics, a clip-normalised stream (``norm="both"``: beside the corpus-normalised
-    inputs; the bias in the clip's scales) is windowed mode on the whole clip."""
-    model = _varied(tiny(kind, sample, norm=norm))
+    inputs; the bias in the clip's scales; ``sincos``: the angles' sine and cosine as inputs too) is windowed mode
+    on the whole clip."""
+    model = _varied(tiny(kind, sample, norm=norm, sincos=sincos))
     clip = sample.channels[300 : 300 + length]
     stats = _clip_stats(clip, sample)
     got = _run(EBFStream(model, sample.skeleton, sample.fps, stats=stats, backend=backend), clip)
