@@ -53,7 +53,8 @@ _HELP = (
 )
 _EBD_EXTRA = (
     ", rehearse=N (per gap N stand-in gaps where the truth is known; a gap keeps the share of the network's correction"
-    " that fitted them), rehearse_mix=0 (all or nothing: interpolate the gaps where the network lost)"
+    " that fitted them), rehearse_mix=0 (all or nothing: interpolate the gaps where the network lost),"
+    " rehearse_pool=W (0-1: weight of the share fitted to all the clip's stand-ins together)"
 )
 _HELP_PAIR = "{what}; checkpoints: EBD,EBF, default: the shipped ones for the skeleton; option mode=sequence|windowed"
 _INDEX = Path(__file__).resolve().parents[1] / "checkpoints" / "index.json"
@@ -209,6 +210,7 @@ def _single(method: str):
         rehearse_margin: float | None = None,
         rehearse_min_s: float | None = None,
         rehearse_mix: int | None = None,
+        rehearse_pool: float | None = None,
     ):
         """``limit``: EBF's self-check factor (``infer.limit_change``; default: the checkpoint's, 0: off).
         ``tta``: the self-ensemble (``tta_passes``). ``blend``: an angle method whose output is averaged with
@@ -238,6 +240,7 @@ def _single(method: str):
                 ("rehearse_margin", rehearse_margin),
                 ("rehearse_min_s", rehearse_min_s),
                 ("rehearse_mix", rehearse_mix),
+                ("rehearse_pool", rehearse_pool),
             )
             if v is not None
         }
@@ -245,10 +248,13 @@ def _single(method: str):
             raise ValueError(f"{method}: rehearse is a whole number of stand-in gaps, got {rehearse!r}")
         if any(isinstance(v, (bool, str)) for v in rehearsal.values()):
             raise ValueError(
-                f"{method}: rehearse, rehearse_margin, rehearse_min_s and rehearse_mix take numbers, got {rehearsal}"
+                f"{method}: rehearse, rehearse_margin, rehearse_min_s, rehearse_mix and rehearse_pool take numbers, "
+                f"got {rehearsal}"
             )
         if rehearsal and method != "ebd":
-            raise ValueError(f"{method}: rehearse, rehearse_margin, rehearse_min_s, rehearse_mix are EBD options")
+            raise ValueError(
+                f"{method}: rehearse, rehearse_margin, rehearse_min_s, rehearse_mix, rehearse_pool are EBD options"
+            )
         if rehearsal:
             try:
                 checked = as_blend(rehearsal)

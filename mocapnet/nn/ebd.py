@@ -142,7 +142,8 @@ class GapBlend:
     ``rehearse_mix``: instead of that verdict, each gap at least ``gate_s[1]`` long (where the network has its
     full weight) keeps the share of the network's correction to the interpolation that fitted its stand-ins
     best (least squares, clipped to [0, 1]); shorter gaps, whose small correction makes that share noisy, keep
-    the verdict.
+    the verdict. ``rehearse_pool`` (0 … 1): the weight of the clip's pooled share (least squares over the
+    stand-ins of all those gaps together) against each gap's own, which few stand-ins make noisy.
     """
 
     spline_max_s: float = 0.5
@@ -154,6 +155,7 @@ class GapBlend:
     rehearse_margin: float = 1.0
     rehearse_min_s: float = 0.0
     rehearse_mix: bool = False
+    rehearse_pool: float = 0.0
 
 
 #: The shipped setting: the blend chosen on bandai2 fold 1 (``scripts/bench_ebd.py --tune``), and the rehearsal
@@ -189,6 +191,8 @@ def as_blend(settings: Mapping[str, Any]) -> GapBlend:
         raise ValueError(f"gap_blend gate_s must hold two times (s), got {blend.gate_s!r}")
     if blend.rehearsals < 0 or not blend.rehearse_margin > 0 or blend.rehearse_min_s < 0:
         raise ValueError(f"gap_blend needs rehearsals >= 0, rehearse_margin > 0, rehearse_min_s >= 0: got {blend}")
+    if not 0.0 <= blend.rehearse_pool <= 1.0:
+        raise ValueError(f"gap_blend rehearse_pool must be within [0, 1], got {blend.rehearse_pool!r}")
     return blend
 
 
@@ -316,8 +320,9 @@ def rehearse(
     unless over its stand-ins the squared error of the interpolation it would fall back to is below
     ``blend.rehearse_margin`` × the blend's (then none); with ``blend.rehearse_mix`` a gap at least
     ``blend.gate_s[1]`` long keeps instead the least-squares share of the blend's correction to the
-    interpolation on its stand-ins (all of it when the blend did not move the stand-ins at all). Gaps without a
-    stand-in keep it all (nothing to judge by)."""
+    interpolation on its stand-ins (all of it when the blend did not move the stand-ins at all), mixed with
+    weight ``blend.rehearse_pool`` with the share fitted to the stand-ins of all those gaps together. Gaps
+    without a stand-in keep it all (nothing to judge by)."""
     gaps = gap_list(mask)
     keep = np.ones(len(gaps))
     if blend.rehearsals <= 0:
@@ -329,16 +334,25 @@ def rehearse(
     trial = np.where(both, np.nan, channels)
     base = gap_fill(trial, both, blend.spline_max_s * fps)
     filled = blend_gaps(trial, both, network(both), fps, replace(blend, rehearsals=0))[0]
+    fits: dict[int, tuple[float, float]] = {}  # mix-eligible gap -> (step · residual, step²) over its stand-ins
     for g, ((cols, a, b), places) in enumerate(zip(gaps, stand_ins)):
         if places:
             rows = np.concatenate([np.arange(s, e) for s, e in places])
             truth, fill_s, base_s = (x[rows][:, cols] for x in (channels, filled, base))
             if blend.rehearse_mix and b - a >= blend.gate_s[1] * fps:
                 step = wrap_deg(fill_s - base_s)
-                power = float((step**2).sum())
-                fit = float((step * wrap_deg(truth - base_s)).sum()) / power if power > 0 else 1.0
-                keep[g] = min(max(fit, 0.0), 1.0)
+                fits[g] = (float((step * wrap_deg(truth - base_s)).sum()), float((step**2).sum()))
                 continue
             err = [float((wrap_deg(x - truth) ** 2).sum()) for x in (fill_s, base_s)]
             keep[g] = float(err[1] >= blend.rehearse_margin * err[0])
+    if fits:
+        pooled = _share(*np.sum(list(fits.values()), axis=0))
+        for g, fit in fits.items():
+            keep[g] = (1.0 - blend.rehearse_pool) * _share(*fit) + blend.rehearse_pool * pooled
     return keep
+
+
+def _share(fit: float, power: float) -> float:
+    """Least-squares share ``fit / power`` of a correction (step · residual over step²), clipped to [0, 1]; all
+    of it (1) when the correction is zero."""
+    return min(max(fit / power, 0.0), 1.0) if power > 0 else 1.0

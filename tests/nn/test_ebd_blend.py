@@ -9,7 +9,7 @@ import pytest
 
 from mocapnet.corrupt import corrupt_motion
 from mocapnet.fill import lerp_fill, spline_fill
-from mocapnet.nn.ebd import GAP_BLEND, blend_gaps, channel_speed, gap_list, rehearse, stand_in_gaps
+from mocapnet.nn.ebd import GAP_BLEND, as_blend, blend_gaps, channel_speed, gap_list, rehearse, stand_in_gaps
 
 FPS = 30.0
 PURE_NETWORK = dataclasses.replace(GAP_BLEND, spline_max_s=0.0, gate_s=(0.0, 0.0), taper_s=0.0, speed_factor=np.inf)
@@ -202,6 +202,42 @@ def test_rehearse_mix_keeps_the_share_of_the_correction_that_fits_the_stand_ins(
     short = gap_mask(truth.shape, [(100, 104, [0]), (300, 330, [1, 2])])
     shares = rehearse(np.where(short, np.nan, truth), short, FPS, gated, overshoot)
     assert shares[0] in (0.0, 1.0) and 0.0 < shares[1] < 1.0
+
+
+def test_rehearse_pool_mixes_each_gaps_share_with_the_clips_pooled_one():
+    """A network that overshoots by 2x on channel 0 (share 1/2) and is exact on channels 1-2 (share 1): with
+    ``rehearse_pool`` w each gap keeps (1 - w) x its own share + w x the share fitted to every stand-in at once
+    (one least-squares fit over all of them, between the two)."""
+    from mocapnet.fill import gap_fill
+
+    truth = smooth_channels(600)
+    mask = gap_mask(truth.shape, [(100, 120, [0]), (300, 330, [1, 2])])
+    channels = np.where(mask, np.nan, truth)
+    blend = dataclasses.replace(
+        GAP_BLEND, gate_s=(0.0, 1e-6), taper_s=1e-6, speed_factor=np.inf, rehearsals=2, rehearse_mix=True
+    )
+
+    def network(m):
+        base = gap_fill(np.where(m, np.nan, truth), m, blend.spline_max_s * FPS)
+        out = truth.copy()
+        out[:, 0] = base[:, 0] + 2.0 * (truth[:, 0] - base[:, 0])
+        return out
+
+    own = rehearse(channels, mask, FPS, blend, network)
+    np.testing.assert_allclose(own, [0.5, 1.0])
+    # pooled by hand: sum of step * residual over sum of step^2 across both gaps' stand-ins
+    fake, places = stand_in_gaps(mask, 2)
+    both = mask | fake
+    base = gap_fill(np.where(both, np.nan, truth), both, blend.spline_max_s * FPS)
+    step, resid = network(both) - base, truth - base
+    rows = [(np.concatenate([np.arange(s, e) for s, e in p]), cols) for p, (cols, _, _) in zip(places, gap_list(mask))]
+    num = sum(float((step[r][:, c] * resid[r][:, c]).sum()) for r, c in rows)
+    den = sum(float((step[r][:, c] ** 2).sum()) for r, c in rows)
+    for w in (0.5, 1.0):
+        pooled = rehearse(channels, mask, FPS, dataclasses.replace(blend, rehearse_pool=w), network)
+        np.testing.assert_allclose(pooled, (1 - w) * own + w * min(num / den, 1.0), atol=1e-9)
+    with pytest.raises(ValueError, match="rehearse_pool"):
+        as_blend({"rehearse_pool": 1.5})
 
 
 def test_rehearse_option_runs_one_more_pass_and_interpolates_the_gaps_it_rejects(sample, monkeypatch):
