@@ -2,8 +2,9 @@
 every network on the accelerator (one short epoch on the shipped sample, checkpoints written), then training
 steps per second of the shipped bandai2 EBF's architecture (96 LSTM units, free-shape kernel, per-clip
 normalisation, dropout 0.2, crops of 64-128 frames, every noise type) on the CPU with 1 thread and on the GPU
-at batch 32 and 256 (and 256 with 8 torch threads), in one process, so the ratios compare like with like. The
-first steps (warm-up, CUDA kernels' first launch) are not timed."""
+at batch 32 and 256 (and 256 with 8 torch threads, or with 4 or 8 DataLoader workers drawing the crops), in one
+process, so the ratios compare like with like; ``CPU_RUNS`` (no GPU needed): the CPU with and without one worker.
+The first steps (warm-up, CUDA kernels' first launch) are not timed."""
 
 from __future__ import annotations
 
@@ -30,8 +31,17 @@ SHIPPED_EBF = (
     "data.crop_max=128",
     "corruption=mix",
 )
-#: (label, accelerator, batch size, torch threads) of the timed runs.
-RATE_RUNS = (("cpu", "cpu", 32, 1), ("gpu", "gpu", 32, 1), ("gpu", "gpu", 256, 1), ("gpu", "gpu", 256, 8))
+#: (label, accelerator, batch size, torch threads, DataLoader workers) of the timed runs: the CPU alone, and
+#: the CPU against the GPU (whose large batches the one-process crop pipeline cannot feed: workers).
+CPU_RUNS = (("cpu", "cpu", 32, 1, 0), ("cpu", "cpu", 32, 1, 1))
+RATE_RUNS = (
+    ("cpu", "cpu", 32, 1, 0),
+    ("gpu", "gpu", 32, 1, 0),
+    ("gpu", "gpu", 256, 1, 0),
+    ("gpu", "gpu", 256, 8, 0),
+    ("gpu", "gpu", 256, 1, 4),
+    ("gpu", "gpu", 256, 1, 8),
+)
 
 
 class StepClock(L.Callback):
@@ -69,12 +79,20 @@ def smoke(runs_root: Path, accelerator: str) -> list[dict[str, Any]]:
     return rows
 
 
-def step_rates(runs: Sequence[tuple[str, str, int, int]] = RATE_RUNS, steps: int = 45) -> list[dict[str, Any]]:
+def step_rates(runs: Sequence[tuple[str, str, int, int, int]] = RATE_RUNS, steps: int = 45) -> list[dict[str, Any]]:
     """Training steps per second of ``SHIPPED_EBF`` on the sample for each ``(label, accelerator, batch,
-    threads)``: ``{"label", "batch", "threads", "steps_per_s", "crops_per_s"}`` rows."""
+    threads, workers)``: ``{"label", "batch", "threads", "workers", "steps_per_s", "crops_per_s"}`` rows."""
     rows = []
-    for label, accelerator, batch, threads in runs:
-        cfg = compose_config([*QUICK, *SHIPPED_EBF, f"data.batch_size={batch}", "data.steps_per_epoch=1000"])
+    for label, accelerator, batch, threads, workers in runs:
+        cfg = compose_config(
+            [
+                *QUICK,
+                *SHIPPED_EBF,
+                f"data.batch_size={batch}",
+                "data.steps_per_epoch=1000",
+                f"data.num_workers={workers}",
+            ]
+        )
         configure_torch(threads)
         data, net = build(cfg)
         clock = StepClock()
@@ -95,6 +113,7 @@ def step_rates(runs: Sequence[tuple[str, str, int, int]] = RATE_RUNS, steps: int
                 "label": label,
                 "batch": batch,
                 "threads": threads,
+                "workers": workers,
                 "steps_per_s": clock.rate,
                 "crops_per_s": clock.rate * batch,
             }  # fmt: skip
@@ -104,18 +123,22 @@ def step_rates(runs: Sequence[tuple[str, str, int, int]] = RATE_RUNS, steps: int
 
 def markdown(result: dict[str, Any]) -> str:
     lines = provenance_header("Training speed", result)
-    lines += [f"Device: {result['device']}", "", "Smoke run (one 10-step epoch, validation, checkpoints):", ""]
-    lines += markdown_table(["network", "seconds", "best"], [[r["model"], fmt(r["seconds"], 1), r["checkpoint"]]
-                                                          for r in result["smoke"]])  # fmt: skip
-    cpu = next(r["crops_per_s"] for r in result["rates"] if r["label"] == "cpu")
-    lines += ["", "Shipped bandai2 EBF architecture on the sample clip, steps per second:", ""]
+    lines += [f"Device: {result['device']}", ""]
+    if result.get("smoke"):
+        lines += ["Smoke run (one 10-step epoch, validation, checkpoints):", ""]
+        lines += markdown_table(["network", "seconds", "best"], [[r["model"], fmt(r["seconds"], 1), r["checkpoint"]]
+                                                              for r in result["smoke"]])  # fmt: skip
+        lines.append("")
+    cpu = next(r["crops_per_s"] for r in result["rates"] if r["label"] == "cpu" and not r.get("workers"))
+    lines += ["Shipped bandai2 EBF architecture on the sample clip, steps per second:", ""]
     lines += markdown_table(
-        ["device", "batch", "torch threads", "steps/s", "crops/s", "crops/s ÷ CPU's"],
+        ["device", "batch", "torch threads", "loader workers", "steps/s", "crops/s", "crops/s ÷ CPU's"],
         [
             [
                 r["label"],
                 r["batch"],
                 r["threads"],
+                r.get("workers", 0),
                 fmt(r["steps_per_s"], 2),
                 fmt(r["crops_per_s"], 0),
                 fmt(r["crops_per_s"] / cpu, 1),

@@ -14,6 +14,11 @@ uses the standard deviation σ_c of the whole (training) clip, as PROTOCOL.md de
 not of the crop. Random streams are seeded by ``(seed, rank, epoch counter)``; the counter is saved in the
 checkpoint, so a resumed run draws the batches an uninterrupted run would.
 
+Worker processes (``num_workers=N > 0``, for a GPU that one process cannot keep busy): the epoch's batches are
+shared out among N DataLoader workers, worker k drawing its own from ``(seed, rank, epoch counter, N, k)``;
+the loader takes them in turn, so a run is as reproducible (and resumable) as with ``num_workers=0`` for the
+same N, but draws other batches than another N.
+
 Spatial noise (``spatial-Xcm``) on a crop: IK per crop is too slow for training, so ``setup`` computes, once per
 training clip and level X, the angle change that X cm of 3-D joint noise causes through bone-length-preserving
 IK (``corrupt.spatial_noise``); a crop adds that residual at its (nearest, when time-warped) frames with a random sign.
@@ -43,6 +48,7 @@ would be.
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Iterator, Sequence
 from typing import Any
 
@@ -248,20 +254,38 @@ def crop_statistics(clip: Normaliser, clean: np.ndarray, noisy: np.ndarray, rate
 
 
 class CropStream(IterableDataset):
-    """Endless-style stream of ``steps`` training batches per epoch (see module docstring)."""
+    """``steps_per_epoch`` training batches per epoch (module docstring), drawn for epoch ``epoch`` (set by
+    ``EpochLoader`` in the main process before any worker starts); in a DataLoader worker, that worker's share."""
 
-    def __init__(self, module: MotionDataModule) -> None:
+    def __init__(self, module: MotionDataModule, rank: int) -> None:
         self.module = module
+        self.rank = rank
+        self.epoch = 0
 
     def __len__(self) -> int:
         return self.module.hparams.steps_per_epoch
 
     def __iter__(self) -> Iterator[dict[str, torch.Tensor]]:
-        dm = self.module
-        rng = np.random.default_rng([dm.hparams.seed, dm.rank, dm.epoch_counter])
-        dm.epoch_counter += 1
-        for _ in range(dm.hparams.steps_per_epoch):
+        dm, steps = self.module, self.module.hparams.steps_per_epoch
+        worker = torch.utils.data.get_worker_info()
+        if worker is None:
+            rng = np.random.default_rng([dm.hparams.seed, self.rank, self.epoch])
+        else:
+            rng = np.random.default_rng([dm.hparams.seed, self.rank, self.epoch, worker.num_workers, worker.id])
+            steps = steps // worker.num_workers + (worker.id < steps % worker.num_workers)
+        for _ in range(steps):
             yield dm.sample_batch(rng)
+
+
+class EpochLoader(DataLoader):
+    """The training DataLoader: each ``iter`` (one epoch) hands the data module's epoch counter to the
+    ``CropStream`` and advances it, in the main process, before the workers are started."""
+
+    def __iter__(self):
+        stream, dm = self.dataset, self.dataset.module
+        stream.epoch = dm.epoch_counter
+        dm.epoch_counter += 1
+        return super().__iter__()
 
 
 class MotionDataModule(L.LightningDataModule):
@@ -290,8 +314,11 @@ class MotionDataModule(L.LightningDataModule):
         time_warp: tuple[float, float] | None = None,
         spline_max_s: float = 0.0,
         mirror: bool = False,
+        num_workers: int = 0,
     ) -> None:
         super().__init__()
+        if isinstance(num_workers, bool) or not isinstance(num_workers, int) or num_workers < 0:
+            raise ValueError(f"num_workers must be a whole number >= 0, got {num_workers!r}")
         self.save_hyperparameters()
         self.spatial: dict[float, list[np.ndarray]] = {}
         self.epoch_counter = 0
@@ -382,7 +409,10 @@ class MotionDataModule(L.LightningDataModule):
         return as_batch(*(np.stack(out[k]) for k in keys), crop_stats)
 
     def train_dataloader(self) -> DataLoader:
-        return DataLoader(CropStream(self), batch_size=None, num_workers=0)
+        workers = self.hparams.get("num_workers", 0)
+        # torch warns that __len__ may be wrong with workers unless each draws its own share: CropStream's do
+        warnings.filterwarnings("ignore", message="Your `IterableDataset` has `__len__` defined", category=UserWarning)
+        return EpochLoader(CropStream(self, self.rank), batch_size=None, num_workers=workers)
 
     def val_dataloader(self) -> DataLoader:
         return DataLoader(self.val_batches, batch_size=None, num_workers=0)
