@@ -73,7 +73,7 @@ def input_features_numpy(
     sincos: bool = False,
 ) -> np.ndarray:
     """Numpy twin of ``CleanerModule.input_features`` without a mask (the streaming kernels): scored channels
-    ``[N, C]`` (degrees) and root angular velocity ``[N, 3]`` (rad/s) → ``[N, n_inputs(C, norm)]`` float32,
+    ``[N, C]`` (degrees) and root angular velocity ``[N, 3]`` (rad/s) → ``[N, n_inputs(C, norm, sincos)]`` float32,
     normalised with ``stats`` = ``(center [C], scale [C], angvel_scale [3])`` after the same with ``corpus``
     (the corpus buffers, for ``norm="both"``) when given; then sine and cosine of ``filled`` (``sincos``)."""
     parts = []

@@ -278,14 +278,16 @@ class CropStream(IterableDataset):
 
 
 class EpochLoader(DataLoader):
-    """The training DataLoader: each ``iter`` (one epoch) hands the data module's epoch counter to the
-    ``CropStream`` and advances it, in the main process, before the workers are started."""
+    """The training DataLoader: an epoch's iteration, at its first batch, hands the data module's epoch counter
+    to the ``CropStream`` and advances it, in the main process, before the workers are started. (At the first
+    batch, not when the iterator is made: Lightning may make one it never reads, e.g. with
+    ``reload_dataloaders_every_n_epochs``.)"""
 
-    def __iter__(self):
+    def __iter__(self) -> Iterator[dict[str, torch.Tensor]]:
         stream, dm = self.dataset, self.dataset.module
         stream.epoch = dm.epoch_counter
         dm.epoch_counter += 1
-        return super().__iter__()
+        yield from super().__iter__()
 
 
 class MotionDataModule(L.LightningDataModule):

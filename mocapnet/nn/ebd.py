@@ -142,8 +142,9 @@ class GapBlend:
     ``rehearse_mix``: instead of that verdict, each gap at least ``gate_s[1]`` long (where the network has its
     full weight) keeps the share of the network's correction to the interpolation that fitted its stand-ins
     best (least squares, clipped to [0, 1]); shorter gaps, whose small correction makes that share noisy, keep
-    the verdict. ``rehearse_pool`` (0 … 1): the weight of the clip's pooled share (least squares over the
-    stand-ins of all those gaps together) against each gap's own, which few stand-ins make noisy.
+    the verdict. ``rehearse_pool`` (0 … 1; with ``rehearse_mix`` only): the weight of the clip's pooled share
+    (least squares over the stand-ins of all those gaps together) against each gap's own, which few stand-ins
+    make noisy.
     """
 
     spline_max_s: float = 0.5

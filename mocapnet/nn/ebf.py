@@ -109,7 +109,7 @@ class EBF(CleanerModule):
     def features(
         self, filled: torch.Tensor, angvel: torch.Tensor, stats: dict[str, torch.Tensor] | None = None
     ) -> torch.Tensor:
-        """``[B, T, C]`` degrees and ``[B, T, 3]`` rad/s → encoder input ``[B, T, n_inputs(C, norm)]``
+        """``[B, T, C]`` degrees and ``[B, T, 3]`` rad/s → encoder input ``[B, T, n_inputs(C, norm, sincos)]``
         (``input_features``), normalised with ``stats`` (from ``input_stats``; default
         ``input_stats(filled, angvel)``)."""
         stats = self.input_stats(filled, angvel) if stats is None else stats
