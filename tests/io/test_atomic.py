@@ -111,7 +111,8 @@ CHILD = textwrap.dedent(
         with atomic_output(out) as tmp:
             tmp.write_bytes(b"half a file")
             print("writing", tmp, flush=True)
-            time.sleep(30)
+            for _ in range(600):  # short sleeps: a signal taken by another thread (BLAS) wakes no long sleep
+                time.sleep(0.05)
     except Exception as exc:
         print(type(exc).__name__, exc, flush=True)
         sys.exit(3)
