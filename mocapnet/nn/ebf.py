@@ -30,6 +30,7 @@ validation error stalls, and gradient clipping.
 
 from __future__ import annotations
 
+import numpy as np
 import torch
 from torch import nn
 
@@ -175,6 +176,33 @@ class EBF(CleanerModule):
 
     def predict_batch(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
         return self(batch["filled"], batch["angvel"], batch if "scale" in batch else None)
+
+    def predict_chunked(
+        self, batch: dict[str, torch.Tensor], starts: np.ndarray, cores: np.ndarray, width: int, per_group: int
+    ) -> torch.Tensor:
+        """Sequence mode on a long clip, a batch of 1 (``infer.predict_sequence``): output ``[T, C]`` equal to
+        running ``predict_batch`` on each window ``[starts_i, starts_i + width)`` and keeping its core
+        ``[cores_i, cores_{i+1})``, with only the LSTM run on the windows. The encoder runs once per frame,
+        the head once per kept frame (its filter needs only the ``half`` input frames beyond each group of
+        cores), ``per_group`` windows at a time; memory stays O(T·C)."""
+        filled, angvel = batch["filled"], batch["angvel"]
+        n, half = filled.shape[1], self.hparams.half
+        stats = self.input_stats(filled, angvel, batch if "scale" in batch else None)
+        codes = self.encoder(self.features(filled, angvel, stats))[0]  # [T, F]
+        out = filled.new_empty(n, filled.shape[2])
+        frames, chunk = torch.arange(width), int(cores[1] - cores[0]) if len(cores) > 1 else n
+        for g in range(0, len(starts), per_group):
+            ws, cs = starts[g : g + per_group], cores[g : g + per_group]
+            lstm = self.blstm(codes[torch.as_tensor(ws)[:, None] + frames])  # [G, W, 2H]
+            first, last = int(cs[0]), min(int(cs[-1]) + chunk, n)
+            lo, hi = max(first - half, 0), min(last + half, n)  # the filter's input frames
+            hidden = lstm.new_zeros(hi - lo, lstm.shape[2])  # frames outside the cores are cut off below
+            for i, (w0, c0) in enumerate(zip(ws, cs)):
+                c1 = min(int(c0) + chunk, n)
+                hidden[c0 - lo : c1 - lo] = lstm[i, c0 - w0 : c1 - w0]
+            pred = self.apply_hidden(filled[:, lo:hi], self.head[:-1](hidden)[None], stats["scale"])
+            out[first:last] = pred[0, first - lo : last - lo]
+        return out
 
     def windowed(
         self,

@@ -111,3 +111,26 @@ def test_chunked_sequence_mode_matches_one_pass(method, sample):
     with torch.inference_mode():
         diff = (predict_sequence(model, batch) - model.predict_batch(batch)[0]).abs()
     assert float(diff.max()) < 0.2 and float(diff.pow(2).mean().sqrt()) < 0.005
+
+
+@pytest.mark.parametrize("kind,norm", [("ebf", "corpus"), ("ebf-bias", "clip"), ("ebf-free", "clip"), ("bf", "both")])
+@pytest.mark.parametrize("chunk,overlap,per_group", [(1024, 128, 25), (200, 16, 3), (150, 15, 1)])
+def test_ebf_chunked_sequence_mode_equals_running_every_window(kind, norm, chunk, overlap, per_group, sample, tiny):
+    """EBF's long-clip path (encoder once per frame, LSTM on the windows, head and filter on the kept cores and
+    the filter's ``half`` frames around each group) gives what the whole network gives window by window; the
+    overlap may be as short as the filter's half (15 frames), and groups of one window join up too."""
+    from mocapnet.nn.base import clip_statistics
+    from mocapnet.nn.features import ClipArrays
+    from mocapnet.nn.infer import chunk_starts, predict_windows
+
+    model = tiny(kind, sample, norm=norm).eval()
+    clip = ClipArrays.from_motion(sample)
+    n = len(clip.scored) - 7  # the last core is a short one
+    x = torch.as_tensor(clip.scored[:n] + 2.0 * np.sin(np.arange(n))[:, None], dtype=torch.float32)[None]
+    w = torch.as_tensor(clip.angvel[:n], dtype=torch.float32)[None]
+    batch = {"filled": x, "mask": torch.zeros_like(x, dtype=torch.bool), "angvel": w} | clip_statistics(x, w)
+    starts, cores, width = chunk_starts(n, chunk, overlap)
+    with torch.inference_mode():
+        fast = model.predict_chunked(batch, starts, cores, width, per_group)
+        every = predict_windows(model, batch, starts, cores, width, per_group)
+    torch.testing.assert_close(fast, every, atol=1e-4, rtol=0)
