@@ -102,13 +102,21 @@ def read_mask(path: str | os.PathLike, motion) -> np.ndarray:
 
 
 def clean_bvh_file(src: Path, out: Path, options: CleanOptions) -> CleanResult:
-    """Denoise (and with a mask, fill) a BVH file with a joint-angle method and write the result."""
+    """Denoise (and with a mask, fill) a BVH file with a joint-angle method and write the result. The default
+    (``auto``, ``mocapnet.methods.auto_angles``): the networks shipped for the skeleton, else a self-checked
+    Gaussian; the result's message and ``details["auto"]`` say which and why."""
     from mocapnet.io import read_bvh, write_bvh
     from mocapnet.methods.registry import build_method
 
     motion = read_bvh(src)
     mask = read_mask(options.mask, motion) if options.mask else np.zeros(motion.channels.shape, dtype=bool)
-    method = options.method or ("ebd+ebf" if mask.any() else "ebf")
+    method, why = options.method, ""
+    if method is None and options.model:
+        method = "ebd+ebf" if mask.any() else "ebf"
+    if method is None or method.strip() == "auto":
+        from mocapnet.methods.auto_angles import auto_plan
+
+        method, why = auto_plan(motion.skeleton, bool(mask.any()))
     if options.model:
         method = f"{method.split('=')[0]}={options.model}"
     built = build_method(method, space="angles")
@@ -119,7 +127,9 @@ def clean_bvh_file(src: Path, out: Path, options: CleanOptions) -> CleanResult:
     n_missing = int(mask.sum())
     return CleanResult(
         src, out, method, motion.n_frames, n_missing,
-        f"{src} -> {out}: {method} on {motion.n_frames} frames ({n_missing} missing samples)",
+        f"{src} -> {out}: {method} on {motion.n_frames} frames ({n_missing} missing samples)"
+        + (f"; auto: {why}" if why else ""),
+        {"auto": why} if why else {},
     )  # fmt: skip
 
 

@@ -33,7 +33,7 @@ examples:
   mocapnet clean take.c3d -o take_filled.c3d --method pca          # one filler for every gap, unchecked
   mocapnet clean take.c3d -o take_filled.c3d --method knn --database clean_takes/
   mocapnet clean take.c3d -o take_live.c3d --method extrapolate+cm
-  mocapnet clean walk.bvh -o walk_clean.bvh                       # denoise with the shipped EBF for this skeleton
+  mocapnet clean walk.bvh -o walk_clean.bvh                       # shipped EBF for the skeleton, else checked Gaussian
   mocapnet clean walk.bvh -o walk_clean.bvh --method gaussian-58ms
   mocapnet clean walk.bvh -o walk_filled.bvh --mask missing.npy   # bool [T, C] or [T, J], True = missing
   mocapnet clean archive/ -o cleaned/ --report cleaned/report.csv  # a folder (recursing), on all local cores
@@ -224,8 +224,9 @@ def build_parser() -> argparse.ArgumentParser:
     cl.add_argument("-o", "--output", required=True, help="output file (same format as the input) or folder")
     cl.add_argument(
         "--method",
-        help="method (default: ebf for BVH, ebd+ebf with --mask; auto for C3D: per gap rigid-body, pca, knn with "
-        "--database, spline or lerp, each fill checked, implausible gaps left missing)",
+        help="method (default auto. BVH: the EBF shipped for the skeleton, ebd+ebf with --mask, on any other "
+        "skeleton gaussian-58ms+check; C3D: per gap rigid-body, pca, knn with --database, spline or lerp, each "
+        "fill checked, implausible gaps left missing)",
     )
     cl.add_argument("--model", help="checkpoint(s) for a neural method, comma-separated for ebd+ebf")
     cl.add_argument("--mask", help="BVH: .npy bool mask of missing samples, [T, C] or [T, J]")

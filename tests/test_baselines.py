@@ -38,7 +38,7 @@ def test_lerp_and_spline_fill():
 def test_methods_only_touch_scored_channels(cmu_short):
     noisy, mask = corrupt_motion(cmu_short, "noise+gaps", np.random.default_rng(0))
     scored = cmu_short.skeleton.scored_mask
-    for name in ("gaussian-58ms", "gaussian-125ms", "lerp", "spline", "lerp+gaussian-58ms"):
+    for name in ("gaussian-58ms", "gaussian-125ms", "lerp", "spline", "lerp+gaussian-58ms", "gaussian-58ms+check"):
         out = build_method(name).clean(cmu_short.with_channels(noisy), mask)
         assert np.isfinite(out).all(), name
         np.testing.assert_array_equal(out[:, ~scored], noisy[:, ~scored])
@@ -50,6 +50,31 @@ def test_gaussian_beats_noisy(cmu_short):
     out = build_method("gaussian-58ms").clean(cmu_short.with_channels(noisy), mask)
     s = cmu_short.skeleton.scored_mask
     assert np.abs(out - cmu_short.channels)[:, s].mean() < 0.5 * np.abs(noisy - cmu_short.channels)[:, s].mean()
+
+
+def test_checked_gaussian_keeps_clean_motion_and_smooths_noise(cmu_short):
+    """gaussian-58ms+check: on noisy input it smooths almost as gaussian-58ms does; on the clean clip each
+    channel changes by at most limit x the noise it shows (the plain Gaussian changes it far more)."""
+    from mocapnet.selfcheck import noise_level
+
+    s = cmu_short.skeleton.scored_mask
+    checked, plain = build_method("gaussian-58ms+check"), build_method("gaussian-58ms")
+    noisy, mask = corrupt_motion(cmu_short, "angular-0.5", np.random.default_rng(0))
+
+    def err(out):
+        return np.sqrt(np.mean((out - cmu_short.channels)[:, s] ** 2))
+
+    noisy_motion = cmu_short.with_channels(noisy)
+    assert err(checked.clean(noisy_motion, mask)) < 1.1 * err(plain.clean(noisy_motion, mask)) < err(noisy)
+    none = np.zeros_like(mask)
+    kept = checked.clean(cmu_short, none)[:, s] - cmu_short.channels[:, s]
+    cap = build_method("gaussian-58ms+check:limit=1").clean(cmu_short, none)[:, s] - cmu_short.channels[:, s]
+    level = noise_level(cmu_short.channels[:, s])
+    np.testing.assert_array_less(np.sqrt(np.mean(cap**2, axis=0)), level + 1e-9)
+    smoothed = plain.clean(cmu_short, none)[:, s] - cmu_short.channels[:, s]
+    assert np.sqrt(np.mean(kept**2)) < 0.5 * np.sqrt(np.mean(smoothed**2))
+    with pytest.raises(ValueError, match="limit must be positive"):
+        build_method("gaussian-58ms+check:limit=0")
 
 
 def test_gaussian_tuned_picks_per_channel_sigma(cmu):

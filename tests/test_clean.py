@@ -122,3 +122,33 @@ def test_c3d_report_numbers_frames_as_the_file_does(tmp_path):
     gap = {"marker": "M1", "method": None, "ratio": None, "filled_frames": 0, "unfilled_spans": [[10, 19]]}
     gap["tried"] = ["rigid: fewer than 3 partners"]
     assert "frames 1377-1386 (10 frames)" in summary_table([gap], first_frame=1367)
+
+
+def test_default_clean_of_a_skeleton_without_networks_runs_the_checked_gaussian(tmp_path, cmu):
+    """A BVH whose skeleton no shipped network knows (here the CMU rig with one joint renamed) is cleaned by
+    default with gaussian-58ms+check, and the result says so and why; its unscored channels and its gaps'
+    neighbours stay as they were. Asking for ebf by name still fails with the skeleton named."""
+    from mocapnet.io import read_bvh
+
+    clip = cmu.with_channels(cmu.channels[:200])
+    src = tmp_path / "other_rig.bvh"
+    src.write_text(format_bvh(clip).replace("JOINT LeftFingerBase", "JOINT LeftFingerBaseX", 1))
+    mask = np.zeros(clip.channels.shape, dtype=bool)
+    scored = np.flatnonzero(clip.skeleton.scored_mask)
+    mask[80:95, scored[4]] = True
+    np.save(tmp_path / "mask.npy", mask)
+    result = clean_file(src, tmp_path / "out.bvh", CleanOptions(mask=str(tmp_path / "mask.npy")))
+    assert result.method == "gaussian-58ms+check" and "no network shipped for this skeleton" in result.message
+    assert result.details["auto"].startswith("no network shipped")
+    out = read_bvh(tmp_path / "out.bvh").channels
+    unscored = ~clip.skeleton.scored_mask
+    np.testing.assert_allclose(out[:, unscored], clip.channels[:, unscored], atol=1e-4)
+    assert np.isfinite(out).all() and not np.allclose(out[:, scored], clip.channels[:, scored], atol=1e-3)
+    with pytest.raises(LookupError, match="no shipped 'ebf' checkpoint for this skeleton"):
+        clean_file(src, tmp_path / "out2.bvh", CleanOptions(method="ebf"))
+    assert not (tmp_path / "out2.bvh").exists()
+
+
+def test_default_clean_of_a_shipped_skeleton_runs_its_networks(short_bvh, tmp_path):
+    result = clean_file(short_bvh, tmp_path / "out.bvh", CleanOptions())
+    assert result.method == "ebf" and "auto: EBF shipped for this skeleton (cmu120)" in result.message

@@ -18,6 +18,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
         "mocapnet.mirror",
         "mocapnet.segments",
         "mocapnet.fill",
+        "mocapnet.selfcheck",
         "mocapnet.parallel",
     ),
     ("mocapnet", "mocapnet.corrupt", "mocapnet.corpus"),  # the package __init__ re-exports io and motion

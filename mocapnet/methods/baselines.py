@@ -15,6 +15,7 @@ from mocapnet.corrupt import corrupt_motion, seed_for
 from mocapnet.fill import gaussian_smooth, lerp_fill, mask_groups, spline_fill
 from mocapnet.methods.registry import MethodContext, register
 from mocapnet.motion import Markers, Motion
+from mocapnet.selfcheck import limit_change
 
 __all__ = ["gaussian_smooth", "lerp_fill", "mask_groups", "spline_fill", "tune_sigmas", "SIGMA_GRID_S"]
 
@@ -55,6 +56,32 @@ register("gaussian-125ms", "angles", help="Gaussian smoothing, sigma 125 ms (gap
 register("lerp+gaussian-58ms", "angles", help="linear interpolation over gaps, then Gaussian 58 ms")(
     _gaussian_method(0.058)
 )
+
+
+#: The self-check factor of ``gaussian-58ms+check`` (``selfcheck.limit_change``).
+CHECK_LIMIT = 2.5
+
+
+@register(
+    "gaussian-58ms+check",
+    "angles",
+    help="Gaussian smoothing, sigma 58 ms (gaps filled linearly first), self-checked: a channel's RMS change is "
+    f"capped at limit x the white noise it shows (selfcheck.limit_change); option limit (default {CHECK_LIMIT:g})",
+)
+def _gaussian_checked(context: MethodContext, limit: float = CHECK_LIMIT):
+    limit = float(limit)
+    if not limit > 0:
+        raise ValueError(f"gaussian-58ms+check: limit must be positive, got {limit!r}")
+
+    def clean(noisy: Motion, mask: np.ndarray) -> np.ndarray:
+        filled = lerp_fill(noisy.channels, mask)
+        scored = noisy.skeleton.scored_mask
+        smooth = gaussian_smooth(filled[:, scored], 0.058, noisy.fps)
+        out = filled.copy()
+        out[:, scored] = limit_change(filled[:, scored], smooth, limit)
+        return _scored_only(noisy, out)
+
+    return clean
 
 
 @register("lerp", "angles", help="linear interpolation over gaps (no smoothing)")

@@ -44,8 +44,8 @@ import numpy as np
 from mocapnet.fill import lerp_fill
 from mocapnet.kinematics import wrap_near
 from mocapnet.methods.registry import MethodContext, build_method, register
-from mocapnet.motion import Motion
-from mocapnet.nn.variants import VARIANTS, accepts, method_of
+from mocapnet.motion import Motion, Skeleton
+from mocapnet.nn.variants import VARIANTS, accepts, method_of, serves
 
 _HELP = (
     "{what}; checkpoint: NAME=PATH, default: the shipped one for the skeleton; options mode=sequence|windowed, "
@@ -90,6 +90,18 @@ def _resolver(method: str, path: str | None) -> Callable[[Motion], object]:
         return cache[key]
 
     return shipped
+
+
+def shipped_methods(skeleton: Skeleton) -> dict[str, str]:
+    """The learned methods shipped for ``skeleton``'s topology (``checkpoints/index.json``, read as JSON: no
+    torch), each with the corpus its checkpoint was trained on, e.g. ``{"ebf": "bandai2", "ebd": "bandai2"}``."""
+    from mocapnet.nn.features import topology_hash
+
+    if not _INDEX.exists():
+        return {}
+    mine = topology_hash(skeleton)
+    entries = [e for e in json.loads(_INDEX.read_text())["checkpoints"] if e.get("skeleton_hash") == mine]
+    return {m: e["corpus"] for m in (*(v.name for v in VARIANTS), "ebf") for e in entries if serves(e, m)}
 
 
 def _shipped_ebf_recipes() -> str:
@@ -212,7 +224,7 @@ def _single(method: str):
         rehearse_mix: int | None = None,
         rehearse_pool: float | None = None,
     ):
-        """``limit``: EBF's self-check factor (``infer.limit_change``; default: the checkpoint's, 0: off).
+        """``limit``: EBF's self-check factor (``selfcheck.limit_change``; default: the checkpoint's, 0: off).
         ``tta``: the self-ensemble (``tta_passes``). ``blend``: an angle method whose output is averaged with
         the network's (weight 1/2, on the circle) — a blend, reported under its own method string.
         ``rehearse``, ``rehearse_margin``, ``rehearse_min_s``: EBD's rehearsal check (``ebd.GapBlend``; default:

@@ -36,7 +36,7 @@ from mocapnet.io.atomic import MocapFileError
 from mocapnet.motion import Skeleton
 from mocapnet.nn import variants
 from mocapnet.nn.features import topology_hash
-from mocapnet.nn.variants import EBF_VARIANTS
+from mocapnet.nn.variants import EBF_VARIANTS, serves
 
 CHECKPOINT_DIR = Path(__file__).resolve().parents[1] / "checkpoints"
 INDEX = CHECKPOINT_DIR / "index.json"
@@ -117,12 +117,6 @@ def method_of(checkpoint: dict[str, Any]) -> str:
 
 def read_index() -> list[dict[str, Any]]:
     return json.loads(INDEX.read_text())["checkpoints"] if INDEX.exists() else []
-
-
-def serves(entry: dict[str, Any], method: str) -> bool:
-    """Whether index ``entry`` is the shipped checkpoint of ``method``: its own method name, or ``ebf`` for
-    the EBF variant marked ``"ebf": true`` (the best shipped variant for its skeleton)."""
-    return entry["method"] == method or (method == "ebf" and bool(entry.get("ebf")))
 
 
 def shipped_checkpoint(method: str, skeleton: Skeleton) -> Path:

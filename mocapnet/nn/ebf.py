@@ -17,7 +17,7 @@ each clip's own (``base.clip_statistics`` of the noisy input), and then the bias
 scale too, so the network sees the same relative noise on a clip of any corpus; ``norm="both"`` gives it both
 inputs side by side (``base.input_features``; a stream takes the running clip statistics for the clip part).
 ``sincos=True`` adds the sine and cosine of every scored channel to the inputs (``base.input_features``).
-``change_limit`` is used at inference only: the self-check factor of ``infer.limit_change`` (0: off), chosen on
+``change_limit`` is used at inference only: the self-check factor of ``selfcheck.limit_change`` (0: off), chosen on
 the validation fold and stored with the checkpoint.
 
 Departures from the paper, all configurable: hidden size 64 per direction by default (the paper used about

@@ -21,7 +21,6 @@ import torch
 
 from mocapnet.fill import lerp_fill
 from mocapnet.io.atomic import MocapFileError
-from mocapnet.kinematics import wrap_deg
 from mocapnet.motion import Skeleton
 from mocapnet.nn.base import NORM_KEYS, CleanerModule, clip_statistics, uses_clip_statistics
 from mocapnet.nn.checkpoints import read_checkpoint
@@ -29,6 +28,7 @@ from mocapnet.nn.ebd import EBD, GapBlend, blend_gaps, rehearse
 from mocapnet.nn.ebf import EBF
 from mocapnet.nn.features import root_angular_velocity, scored_index, topology_hash
 from mocapnet.nn.variants import MODEL_MODULES
+from mocapnet.selfcheck import limit_change
 from mocapnet.threads import pin_threads
 
 MODES = ("sequence", "windowed")
@@ -138,40 +138,6 @@ def predict_windows(
         for i, (w0, c0) in enumerate(zip(starts[g : g + per_group], cores[g : g + per_group])):
             c1 = min(int(c0) + chunk, n)
             out[c0:c1] = pred[i, c0 - w0 : c1 - w0]
-    return out
-
-
-#: Columns the self-check handles at a time (its temporaries are ``[T, COLUMN_BLOCK]``: O(T) memory).
-COLUMN_BLOCK = 8
-
-
-def noise_level(x: np.ndarray) -> np.ndarray:
-    """Standard deviation ``[C]`` (degrees) of white noise that ``x [T, C]`` (degrees) shows, from its second
-    differences (``6σ²`` for white noise): ``1.4826·MAD / √6``, robust to the motion's own curvature at a few
-    frames and to spikes; the motion's curvature can only raise it. Zeros for fewer than 3 frames."""
-    out = np.zeros(x.shape[1])
-    if len(x) < 3:
-        return out
-    for c in range(0, x.shape[1], COLUMN_BLOCK):
-        d2 = np.diff(np.unwrap(x[:, c : c + COLUMN_BLOCK], period=360.0, axis=0), n=2, axis=0)
-        d2 -= np.median(d2, axis=0)
-        out[c : c + COLUMN_BLOCK] = 1.4826 * np.median(np.abs(d2, out=d2), axis=0) / np.sqrt(6.0)
-    return out
-
-
-def limit_change(noisy: np.ndarray, cleaned: np.ndarray, factor: float) -> np.ndarray:
-    """The self-check: ``cleaned [T, C]`` moved back toward ``noisy [T, C]`` (degrees) on each channel whose RMS
-    change exceeds ``factor`` × its ``noise_level``, so that it changes by exactly that much. A denoiser has no
-    business changing a channel by much more than the noise it shows (on nearly clean input a learned filter
-    otherwise smooths away real motion). Returns a new array; works ``COLUMN_BLOCK`` columns at a time."""
-    cap = factor * noise_level(noisy)
-    out = np.empty(np.broadcast_shapes(noisy.shape, cleaned.shape))
-    for c in range(0, out.shape[1], COLUMN_BLOCK):
-        cols = slice(c, c + COLUMN_BLOCK)
-        change = wrap_deg(cleaned[:, cols] - noisy[:, cols])
-        rms = np.sqrt(np.mean(change**2, axis=0))
-        change *= np.where(rms > cap[cols], cap[cols] / np.maximum(rms, 1e-12), 1.0)
-        out[:, cols] = noisy[:, cols] + change
     return out
 
 

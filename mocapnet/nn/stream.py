@@ -280,9 +280,9 @@ def _stats_due(count: int, width: int) -> bool:
 
 
 class RunningSelfCheck:
-    """EBF's self-check (``infer.limit_change``) applied causally: each scored channel's change is capped at
+    """EBF's self-check (``selfcheck.limit_change``) applied causally: each scored channel's change is capped at
     ``factor`` × the white-noise σ its input shows, both known from the frames seen so far. σ is
-    ``infer.noise_level``'s estimate (MAD of second differences) over the last ``HISTORY`` frames, refreshed
+    ``selfcheck.noise_level``'s estimate (MAD of second differences) over the last ``HISTORY`` frames, refreshed
     on the running statistics' schedule (``_stats_due``) and at the flush; the RMS change is that of every
     frame returned so far, the frames being returned included; frames returned together (the first window, the
     flush) share one cap. A stream shorter than one window thus gets exactly ``limit_change`` of windowed
@@ -311,7 +311,7 @@ class RunningSelfCheck:
         self._prev = scored
 
     def refresh(self) -> None:
-        """Re-estimate σ ``[C]`` from the history (``infer.noise_level``'s formula; zeros before 3 frames)."""
+        """Re-estimate σ ``[C]`` from the history (``selfcheck.noise_level``'s formula; zeros before 3 frames)."""
         d2 = self._d2[: min(self._n_d2, self.HISTORY)]
         if len(d2):
             dev = np.abs(d2 - np.median(d2, axis=0))

@@ -93,3 +93,9 @@ def accepts(method: str, kind: str) -> bool:
     """Whether a network serving ``kind`` (``method_of``) may run as ``method``: its own name, or ``ebf`` for
     every EBF variant."""
     return kind == method or (method == "ebf" and kind in EBF_VARIANTS)
+
+
+def serves(entry: Mapping[str, Any], method: str) -> bool:
+    """Whether ``checkpoints/index.json`` ``entry`` is the shipped checkpoint of ``method``: its own method
+    name, or ``ebf`` for the EBF variant marked ``"ebf": true`` (the best shipped variant for its skeleton)."""
+    return entry["method"] == method or (method == "ebf" and bool(entry.get("ebf")))

@@ -13,14 +13,8 @@ from mocapnet.kinematics import wrap_deg
 from mocapnet.nn.base import NORM_KEYS, clip_statistics
 from mocapnet.nn.data import as_batch, crop_statistics
 from mocapnet.nn.features import ClipArrays, Normaliser, scored_index
-from mocapnet.nn.infer import (
-    CHUNK,
-    OVERLAP,
-    clean_channels,
-    limit_change,
-    noise_level,
-    predict_sequence,
-)
+from mocapnet.nn.infer import CHUNK, OVERLAP, clean_channels, predict_sequence
+from mocapnet.selfcheck import limit_change, noise_level
 
 
 def _clip_model(tiny, sample, kind="ebf-free", **overrides):

@@ -1,0 +1,58 @@
+"""``auto`` for joint angles (BVH): the best cleaner shipped for the clip's skeleton, and a checked baseline
+for any other skeleton, so that the default clean works on every valid file.
+
+Per clip (``auto_plan``):
+
+* a skeleton with a shipped EBF (``mocapnet/checkpoints/index.json``, matched by topology): ``ebf``; with gaps
+  to fill, ``ebd+ebf`` when an EBD is shipped too (else ``ebf``, which bridges gaps linearly first);
+* any other skeleton: ``gaussian-58ms+check`` — gaps filled linearly, Gaussian smoothing of 58 ms, each
+  channel's change capped at a few times the white noise it shows (``selfcheck.limit_change``), so nearly
+  clean input keeps its motion. The networks are trained on one skeleton each and cannot run on another.
+
+``mocapnet clean`` (no ``--method``) reports which one ran and why; ``--method ebf`` still asks for the
+network and fails with a clear message on a skeleton without one.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+from mocapnet.methods.neural import shipped_methods
+from mocapnet.methods.registry import MethodContext, build_method, register
+from mocapnet.motion import Motion, Skeleton
+
+#: What ``auto`` runs on a skeleton without a shipped network.
+FALLBACK = "gaussian-58ms+check"
+
+
+def auto_plan(skeleton: Skeleton, has_gaps: bool) -> tuple[str, str]:
+    """``(method, reason)``: what ``auto`` runs on a clip of ``skeleton`` (with samples to fill when
+    ``has_gaps``), and why, in words for a report."""
+    shipped = shipped_methods(skeleton)
+    if "ebf" in shipped:
+        corpus = shipped["ebf"]
+        if has_gaps and "ebd" in shipped:
+            return "ebd+ebf", f"EBD and EBF shipped for this skeleton ({corpus})"
+        gaps = "; no shipped EBD: gaps bridged linearly" if has_gaps else ""
+        return "ebf", f"EBF shipped for this skeleton ({corpus}){gaps}"
+    return FALLBACK, f"no network shipped for this skeleton, {skeleton.describe()}"
+
+
+@register(
+    "auto",
+    "angles",
+    help="the shipped EBF for the skeleton (ebd+ebf when there are gaps and an EBD is shipped); on any other "
+    f"skeleton {FALLBACK} (Gaussian 58 ms, self-checked); mocapnet clean's default for BVH",
+)
+def _auto(context: MethodContext) -> Callable[[Motion, np.ndarray], np.ndarray]:
+    built: dict[str, Callable] = {}
+
+    def clean(noisy: Motion, mask: np.ndarray) -> np.ndarray:
+        method, _ = auto_plan(noisy.skeleton, bool(mask.any()))
+        if method not in built:
+            built[method] = build_method(method, context, space="angles").clean
+        return built[method](noisy, mask)
+
+    return clean

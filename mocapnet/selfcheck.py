@@ -1,0 +1,43 @@
+"""The self-check of the denoisers: a cleaned clip is pulled back toward its input on every channel that it
+changed by much more than the noise that channel shows. Numpy only (EBF's checkpoints store their factor,
+``change_limit``; the ``gaussian-58ms+check`` baseline and the BVH ``auto`` fallback use it too).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from mocapnet.kinematics import wrap_deg
+
+#: Columns the self-check handles at a time (its temporaries are ``[T, COLUMN_BLOCK]``: O(T) memory).
+COLUMN_BLOCK = 8
+
+
+def noise_level(x: np.ndarray) -> np.ndarray:
+    """Standard deviation ``[C]`` (degrees) of white noise that ``x [T, C]`` (degrees) shows, from its second
+    differences (``6σ²`` for white noise): ``1.4826·MAD / √6``, robust to the motion's own curvature at a few
+    frames and to spikes; the motion's curvature can only raise it. Zeros for fewer than 3 frames."""
+    out = np.zeros(x.shape[1])
+    if len(x) < 3:
+        return out
+    for c in range(0, x.shape[1], COLUMN_BLOCK):
+        d2 = np.diff(np.unwrap(x[:, c : c + COLUMN_BLOCK], period=360.0, axis=0), n=2, axis=0)
+        d2 -= np.median(d2, axis=0)
+        out[c : c + COLUMN_BLOCK] = 1.4826 * np.median(np.abs(d2, out=d2), axis=0) / np.sqrt(6.0)
+    return out
+
+
+def limit_change(noisy: np.ndarray, cleaned: np.ndarray, factor: float) -> np.ndarray:
+    """The self-check: ``cleaned [T, C]`` moved back toward ``noisy [T, C]`` (degrees) on each channel whose RMS
+    change exceeds ``factor`` × its ``noise_level``, so that it changes by exactly that much. A denoiser has no
+    business changing a channel by much more than the noise it shows (on nearly clean input a learned filter
+    otherwise smooths away real motion). Returns a new array; works ``COLUMN_BLOCK`` columns at a time."""
+    cap = factor * noise_level(noisy)
+    out = np.empty(np.broadcast_shapes(noisy.shape, cleaned.shape))
+    for c in range(0, out.shape[1], COLUMN_BLOCK):
+        cols = slice(c, c + COLUMN_BLOCK)
+        change = wrap_deg(cleaned[:, cols] - noisy[:, cols])
+        rms = np.sqrt(np.mean(change**2, axis=0))
+        change *= np.where(rms > cap[cols], cap[cols] / np.maximum(rms, 1e-12), 1.0)
+        out[:, cols] = noisy[:, cols] + change
+    return out
