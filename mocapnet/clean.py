@@ -116,7 +116,7 @@ def clean_bvh_file(src: Path, out: Path, options: CleanOptions) -> CleanResult:
     if method is None or method.strip() == "auto":
         from mocapnet.methods.auto_angles import auto_plan
 
-        method, why = auto_plan(motion.skeleton, bool(mask.any()))
+        method, why = auto_plan(motion.skeleton, motion.fps, bool(mask.any()))
     if options.model:
         method = f"{method.split('=')[0]}={options.model}"
     built = build_method(method, space="angles")

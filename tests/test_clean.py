@@ -152,3 +152,15 @@ def test_default_clean_of_a_skeleton_without_networks_runs_the_checked_gaussian(
 def test_default_clean_of_a_shipped_skeleton_runs_its_networks(short_bvh, tmp_path):
     result = clean_file(short_bvh, tmp_path / "out.bvh", CleanOptions())
     assert result.method == "ebf" and "auto: EBF shipped for this skeleton (cmu120)" in result.message
+
+
+def test_default_clean_at_another_frame_rate_than_the_network_runs_the_checked_gaussian(tmp_path, cmu):
+    """The shipped CMU networks count frames at 120 fps: a 30 fps file of the same rig gets the checked
+    Gaussian, and the reason names both rates."""
+    import dataclasses
+
+    src = tmp_path / "walk30.bvh"
+    src.write_text(format_bvh(dataclasses.replace(cmu.with_channels(cmu.channels[:90]), fps=30.0)))
+    result = clean_file(src, tmp_path / "out.bvh", CleanOptions())
+    assert result.method == "gaussian-58ms+check"
+    assert "was trained at 120 fps, this clip is at 30 fps" in result.details["auto"]

@@ -3,11 +3,13 @@ for any other skeleton, so that the default clean works on every valid file.
 
 Per clip (``auto_plan``):
 
-* a skeleton with a shipped EBF (``mocapnet/checkpoints/index.json``, matched by topology): ``ebf``; with gaps
-  to fill, ``ebd+ebf`` when an EBD is shipped too (else ``ebf``, which bridges gaps linearly first);
-* any other skeleton: ``gaussian-58ms+check`` — gaps filled linearly, Gaussian smoothing of 58 ms, each
-  channel's change capped at a few times the white noise it shows (``selfcheck.limit_change``), so nearly
-  clean input keeps its motion. The networks are trained on one skeleton each and cannot run on another.
+* a skeleton with a shipped EBF (``mocapnet/checkpoints/index.json``, matched by topology) trained at the
+  clip's frame rate: ``ebf``; with gaps to fill, ``ebd+ebf`` when an EBD is shipped too (else ``ebf``, which
+  bridges gaps linearly first);
+* any other skeleton or frame rate: ``gaussian-58ms+check`` — gaps filled linearly, Gaussian smoothing of
+  58 ms, each channel's change capped at a few times the white noise it shows (``selfcheck.limit_change``),
+  so nearly clean input keeps its motion. The networks are trained on one skeleton and frame rate each
+  (their filters count frames).
 
 ``mocapnet clean`` (no ``--method``) reports which one ran and why; ``--method ebf`` still asks for the
 network and fails with a clear message on a skeleton without one.
@@ -27,30 +29,39 @@ from mocapnet.motion import Motion, Skeleton
 FALLBACK = "gaussian-58ms+check"
 
 
-def auto_plan(skeleton: Skeleton, has_gaps: bool) -> tuple[str, str]:
-    """``(method, reason)``: what ``auto`` runs on a clip of ``skeleton`` (with samples to fill when
-    ``has_gaps``), and why, in words for a report."""
-    shipped = shipped_methods(skeleton)
+#: How far a clip's frame rate may be from a network's training rate (relative) for ``auto`` to run it: the
+#: networks' filters and LSTMs count frames, so at another rate they smooth over another time span.
+FPS_TOLERANCE = 0.01
+
+
+def auto_plan(skeleton: Skeleton, fps: float, has_gaps: bool) -> tuple[str, str]:
+    """``(method, reason)``: what ``auto`` runs on a clip of ``skeleton`` at ``fps`` frames/s (with samples to
+    fill when ``has_gaps``), and why, in words for a report."""
+    every = shipped_methods(skeleton)
+    shipped = {m: e for m, e in every.items() if abs(fps / float(e["fps"]) - 1.0) <= FPS_TOLERANCE}
     if "ebf" in shipped:
-        corpus = shipped["ebf"]
+        corpus = shipped["ebf"]["corpus"]
         if has_gaps and "ebd" in shipped:
             return "ebd+ebf", f"EBD and EBF shipped for this skeleton ({corpus})"
         gaps = "; no shipped EBD: gaps bridged linearly" if has_gaps else ""
         return "ebf", f"EBF shipped for this skeleton ({corpus}){gaps}"
+    if other := every.get("ebf"):
+        trained = f"the EBF shipped for this skeleton ({other['corpus']}) was trained at {other['fps']:g} fps"
+        return FALLBACK, f"{trained}, this clip is at {fps:g} fps"
     return FALLBACK, f"no network shipped for this skeleton, {skeleton.describe()}"
 
 
 @register(
     "auto",
     "angles",
-    help="the shipped EBF for the skeleton (ebd+ebf when there are gaps and an EBD is shipped); on any other "
-    f"skeleton {FALLBACK} (Gaussian 58 ms, self-checked); mocapnet clean's default for BVH",
+    help="the EBF shipped for the skeleton and frame rate (ebd+ebf when there are gaps and an EBD is shipped); "
+    f"on any other skeleton or rate {FALLBACK} (Gaussian 58 ms, self-checked); mocapnet clean's default for BVH",
 )
 def _auto(context: MethodContext) -> Callable[[Motion, np.ndarray], np.ndarray]:
     built: dict[str, Callable] = {}
 
     def clean(noisy: Motion, mask: np.ndarray) -> np.ndarray:
-        method, _ = auto_plan(noisy.skeleton, bool(mask.any()))
+        method, _ = auto_plan(noisy.skeleton, noisy.fps, bool(mask.any()))
         if method not in built:
             built[method] = build_method(method, context, space="angles").clean
         return built[method](noisy, mask)

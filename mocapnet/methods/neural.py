@@ -92,16 +92,16 @@ def _resolver(method: str, path: str | None) -> Callable[[Motion], object]:
     return shipped
 
 
-def shipped_methods(skeleton: Skeleton) -> dict[str, str]:
+def shipped_methods(skeleton: Skeleton) -> dict[str, dict]:
     """The learned methods shipped for ``skeleton``'s topology (``checkpoints/index.json``, read as JSON: no
-    torch), each with the corpus its checkpoint was trained on, e.g. ``{"ebf": "bandai2", "ebd": "bandai2"}``."""
+    torch), each with its index entry (``corpus``, training ``fps``, ...), e.g. ``{"ebf": {...}, "ebd": {...}}``."""
     from mocapnet.nn.features import topology_hash
 
     if not _INDEX.exists():
         return {}
     mine = topology_hash(skeleton)
     entries = [e for e in json.loads(_INDEX.read_text())["checkpoints"] if e.get("skeleton_hash") == mine]
-    return {m: e["corpus"] for m in (*(v.name for v in VARIANTS), "ebf") for e in entries if serves(e, m)}
+    return {m: e for m in (*(v.name for v in VARIANTS), "ebf") for e in entries if serves(e, m)}
 
 
 def _shipped_ebf_recipes() -> str:
