@@ -114,6 +114,10 @@ def clean_bvh_file(src: Path, out: Path, options: CleanOptions) -> CleanResult:
     if method is None and options.model:
         method = "ebd+ebf" if mask.any() else "ebf"
     if method is None or method.strip() == "auto":
+        if options.model:
+            raise ValueError(
+                "--model names a checkpoint for a network method: give --method too (ebf, ebd, ebd+ebf, ...)"
+            )
         from mocapnet.methods.auto_angles import auto_plan
 
         method, why = auto_plan(motion.skeleton, motion.fps, bool(mask.any()))

@@ -138,8 +138,8 @@ def test_default_clean_of_a_skeleton_without_networks_runs_the_checked_gaussian(
     mask[80:95, scored[4]] = True
     np.save(tmp_path / "mask.npy", mask)
     result = clean_file(src, tmp_path / "out.bvh", CleanOptions(mask=str(tmp_path / "mask.npy")))
-    assert result.method == "gaussian-58ms+check" and "no network shipped for this skeleton" in result.message
-    assert result.details["auto"].startswith("no network shipped")
+    assert result.method == "gaussian-58ms+check" and "no EBF shipped for this skeleton" in result.message
+    assert result.details["auto"].startswith("no EBF shipped")
     out = read_bvh(tmp_path / "out.bvh").channels
     unscored = ~clip.skeleton.scored_mask
     np.testing.assert_allclose(out[:, unscored], clip.channels[:, unscored], atol=1e-4)
@@ -164,3 +164,18 @@ def test_default_clean_at_another_frame_rate_than_the_network_runs_the_checked_g
     result = clean_file(src, tmp_path / "out.bvh", CleanOptions())
     assert result.method == "gaussian-58ms+check"
     assert "was trained at 120 fps, this clip is at 30 fps" in result.details["auto"]
+
+
+def test_auto_with_a_checkpoint_is_one_clear_error(short_bvh, tmp_path):
+    with pytest.raises(ValueError, match="--model names a checkpoint for a network method"):
+        clean_file(short_bvh, tmp_path / "out.bvh", CleanOptions(method="auto", model="some.ckpt"))
+    assert not (tmp_path / "out.bvh").exists()
+
+
+def test_auto_plan_takes_an_index_entry_without_a_frame_rate(monkeypatch, short_motion):
+    from mocapnet.methods import auto_angles
+
+    entries = {"ebf": {"corpus": "x", "fps": 0.0}, "ebd": {"corpus": "x"}}
+    monkeypatch.setattr(auto_angles, "shipped_methods", lambda skeleton: entries)
+    assert auto_angles.auto_plan(short_motion.skeleton, 30.0, True)[0] == "ebd+ebf"
+    assert auto_angles.auto_plan(short_motion.skeleton, 30.0, False)[0] == "ebf"

@@ -24,31 +24,28 @@ import numpy as np
 from mocapnet.methods.neural import shipped_methods
 from mocapnet.methods.registry import MethodContext, build_method, register
 from mocapnet.motion import Motion, Skeleton
+from mocapnet.nn.variants import same_rate
 
 #: What ``auto`` runs on a skeleton without a shipped network.
 FALLBACK = "gaussian-58ms+check"
 
 
-#: How far a clip's frame rate may be from a network's training rate (relative) for ``auto`` to run it: the
-#: networks' filters and LSTMs count frames, so at another rate they smooth over another time span.
-FPS_TOLERANCE = 0.01
-
-
 def auto_plan(skeleton: Skeleton, fps: float, has_gaps: bool) -> tuple[str, str]:
     """``(method, reason)``: what ``auto`` runs on a clip of ``skeleton`` at ``fps`` frames/s (with samples to
-    fill when ``has_gaps``), and why, in words for a report."""
+    fill when ``has_gaps``), and why, in words for a report. A network counts when its index entry's training
+    rate is the clip's (``variants.same_rate``; an entry without a rate counts)."""
     every = shipped_methods(skeleton)
-    shipped = {m: e for m, e in every.items() if abs(fps / float(e["fps"]) - 1.0) <= FPS_TOLERANCE}
+    shipped = {m: e for m, e in every.items() if same_rate(fps, e.get("fps"))}
     if "ebf" in shipped:
         corpus = shipped["ebf"]["corpus"]
         if has_gaps and "ebd" in shipped:
             return "ebd+ebf", f"EBD and EBF shipped for this skeleton ({corpus})"
-        gaps = "; no shipped EBD: gaps bridged linearly" if has_gaps else ""
+        gaps = "; no EBD shipped for this skeleton and frame rate: gaps bridged linearly" if has_gaps else ""
         return "ebf", f"EBF shipped for this skeleton ({corpus}){gaps}"
     if other := every.get("ebf"):
         trained = f"the EBF shipped for this skeleton ({other['corpus']}) was trained at {other['fps']:g} fps"
         return FALLBACK, f"{trained}, this clip is at {fps:g} fps"
-    return FALLBACK, f"no network shipped for this skeleton, {skeleton.describe()}"
+    return FALLBACK, f"no EBF shipped for this skeleton, {skeleton.describe()}"
 
 
 @register(

@@ -59,7 +59,7 @@ register("lerp+gaussian-58ms", "angles", help="linear interpolation over gaps, t
 
 
 #: The self-check factor of ``gaussian-58ms+check`` (``selfcheck.limit_change``).
-CHECK_LIMIT = 2.5
+CHECK_LIMIT = 1.5
 
 
 @register(

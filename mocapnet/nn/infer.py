@@ -27,7 +27,7 @@ from mocapnet.nn.checkpoints import read_checkpoint
 from mocapnet.nn.ebd import EBD, GapBlend, blend_gaps, rehearse
 from mocapnet.nn.ebf import EBF
 from mocapnet.nn.features import root_angular_velocity, scored_index, topology_hash
-from mocapnet.nn.variants import MODEL_MODULES
+from mocapnet.nn.variants import MODEL_MODULES, same_rate
 from mocapnet.selfcheck import limit_change
 from mocapnet.threads import pin_threads
 
@@ -75,7 +75,7 @@ def check_skeleton(model: CleanerModule, skeleton: Skeleton, source: str = "chec
             f"channels); this motion's skeleton is {skeleton.describe()} ({mine}, "
             f"{int(skeleton.scored_mask.sum())} scored channels)"
         )
-    if fps and hp.fps and abs(fps / hp.fps - 1.0) > 0.01:
+    if not same_rate(fps, hp.fps):
         warnings.warn(f"{source} was trained at {hp.fps:g} fps; this motion is at {fps:g} fps", stacklevel=2)
 
 

@@ -99,3 +99,14 @@ def serves(entry: Mapping[str, Any], method: str) -> bool:
     """Whether ``checkpoints/index.json`` ``entry`` is the shipped checkpoint of ``method``: its own method
     name, or ``ebf`` for the EBF variant marked ``"ebf": true`` (the best shipped variant for its skeleton)."""
     return entry["method"] == method or (method == "ebf" and bool(entry.get("ebf")))
+
+
+#: How far a clip's frame rate may be from a network's training rate (relative) before it counts as another
+#: rate: the networks' filters and LSTMs count frames, so at another rate they act over another time span.
+FPS_TOLERANCE = 0.01
+
+
+def same_rate(fps: float, trained_fps: float | None) -> bool:
+    """Whether ``fps`` is a network's training rate ``trained_fps`` (within ``FPS_TOLERANCE``); an unknown
+    rate on either side (0 or None) counts as the same."""
+    return not fps or not trained_fps or abs(fps / float(trained_fps) - 1.0) <= FPS_TOLERANCE
