@@ -182,18 +182,20 @@ class EBF(CleanerModule):
     ) -> torch.Tensor:
         """Sequence mode on a long clip, a batch of 1 (``infer.predict_sequence``): output ``[T, C]`` equal to
         running ``predict_batch`` on each window ``[starts_i, starts_i + width)`` and keeping its core
-        ``[cores_i, cores_{i+1})``, with only the LSTM run on the windows. The encoder runs once per frame,
-        the head once per kept frame (its filter needs only the ``half`` input frames beyond each group of
-        cores), ``per_group`` windows at a time; memory stays O(T·C)."""
+        ``[cores_i, cores_{i+1})``, with only the LSTM run on the windows. ``per_group`` windows at a time: the
+        encoder runs once per frame of the span they cover, the head once per kept frame (its filter needs only
+        the ``half`` input frames beyond the group's cores); memory is O(T·C) for the output and O(group)
+        for the rest."""
         filled, angvel = batch["filled"], batch["angvel"]
         n, half = filled.shape[1], self.hparams.half
         stats = self.input_stats(filled, angvel, batch if "scale" in batch else None)
-        codes = self.encoder(self.features(filled, angvel, stats))[0]  # [T, F]
         out = filled.new_empty(n, filled.shape[2])
         frames, chunk = torch.arange(width), int(cores[1] - cores[0]) if len(cores) > 1 else n
         for g in range(0, len(starts), per_group):
             ws, cs = starts[g : g + per_group], cores[g : g + per_group]
-            lstm = self.blstm(codes[torch.as_tensor(ws)[:, None] + frames])  # [G, W, 2H]
+            span = slice(int(ws[0]), int(ws[-1]) + width)  # the frames the group's windows cover
+            codes = self.encoder(self.features(filled[:, span], angvel[:, span], stats))[0]  # [span, F]
+            lstm = self.blstm(codes[torch.as_tensor(ws - span.start)[:, None] + frames])  # [G, W, 2H]
             first, last = int(cs[0]), min(int(cs[-1]) + chunk, n)
             lo, hi = max(first - half, 0), min(last + half, n)  # the filter's input frames
             hidden = lstm.new_zeros(hi - lo, lstm.shape[2])  # frames outside the cores are cut off below
