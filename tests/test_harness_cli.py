@@ -114,7 +114,8 @@ def test_style_filter(shared):
         evaluate("bandai1", "angular-0.5", ["gaussian-58ms"], repeats=1, progress=False, style="nope")
 
 
-def test_clean_refuses_skeleton_without_shipped_model(tmp_path, capsys):
+def test_clean_of_a_skeleton_without_shipped_model(tmp_path, capsys):
+    """The default (auto) cleans it with the checked Gaussian and says so; --method ebf refuses it by name."""
     from mocapnet.io import write_bvh
     from mocapnet.motion import Motion, Skeleton
 
@@ -126,10 +127,13 @@ def test_clean_refuses_skeleton_without_shipped_model(tmp_path, capsys):
         (("Xposition", "Yposition", "Zposition", *rot), rot),
     )
     write_bvh(tmp_path / "tiny.bvh", Motion(sk, np.zeros((10, 9)), 30.0))
-    assert main(["clean", str(tmp_path / "tiny.bvh"), "-o", str(tmp_path / "out.bvh")]) == 2
+    assert main(["clean", str(tmp_path / "tiny.bvh"), "-o", str(tmp_path / "out.bvh"), "--quiet"]) == 0
+    assert "gaussian-58ms+check" in capsys.readouterr().out and (tmp_path / "out.bvh").exists()
+    args = ["clean", str(tmp_path / "tiny.bvh"), "-o", str(tmp_path / "out2.bvh"), "--method", "ebf"]
+    assert main(args) == 2
     err = capsys.readouterr().err
     assert "no shipped 'ebf' checkpoint for this skeleton, 2 joints" in err and "bandai2: 22 joints" in err
-    assert not (tmp_path / "out.bvh").exists()
+    assert not (tmp_path / "out2.bvh").exists()
 
 
 def test_parallel_evaluate_scores_equal_serial(tmp_path):
