@@ -11,6 +11,8 @@ from pathlib import Path
 EVALUATE_EXAMPLE = """\
 examples:
   mocapnet evaluate --data sample --corruption angular-0.5 --method gaussian-58ms --method gaussian-125ms
+  mocapnet evaluate --data sample --corruption none --corruption angular-0.1 --method gaussian-58ms+check \
+      --markdown scores.md                                        # one table per corruption
   mocapnet evaluate --data ../shared/data/bvh/bandai_namco_2 --corruption angular-0.5 \\
       --method noisy --method gaussian-58ms --method gaussian-125ms --repeats 2 --csv scores.csv
   mocapnet evaluate --data ../shared/data/c3d/hdm05 --corruption segment-gap:left-arm:2 --method knn --method lerp
@@ -60,34 +62,53 @@ def _evaluate(args: argparse.Namespace) -> int:
     from mocapnet.evaluate.harness import evaluate
     from mocapnet.evaluate.report import plot_per_motion, table, write_csv
 
-    ev = evaluate(
-        args.data,
-        args.corruption,
-        args.method or ["noisy", "gaussian-58ms", "gaussian-125ms"],
-        args.repeats,
-        args.fold,
-        args.limit,
-        progress=not args.quiet,
-        style=args.style,
-        parallel=_parallel(args),
-    )
-    where = f"fold {ev.fold} test clips" if ev.fold is not None else "all clips"
-    n_files = len({r["file"] for r in ev.rows})
-    print(f"{ev.data}: {ev.corruption}, {n_files} files ({where}), {ev.repeats} repeats")
-    print(table(ev))
-    for name, reason in ev.skipped[:5]:
-        print(f"skipped: {reason if reason.startswith(name) else f'{name}: {reason}'}", file=sys.stderr)
-    if len(ev.skipped) > 5:
-        print(f"skipped {len(ev.skipped) - 5} more clips for the same kind of reason", file=sys.stderr)
+    corruptions = list(dict.fromkeys(args.corruption or ["angular-0.5"]))  # in order, each once
+    rows, tables = [], []
+    for corruption in corruptions:
+        ev = evaluate(
+            args.data,
+            corruption,
+            args.method or ["noisy", "gaussian-58ms", "gaussian-125ms"],
+            args.repeats,
+            args.fold,
+            args.limit,
+            progress=not args.quiet,
+            style=args.style,
+            parallel=_parallel(args),
+        )
+        where = f"fold {ev.fold} test clips" if ev.fold is not None else "all clips"
+        heading = (
+            f"{ev.data}: {ev.corruption}, {len({r['file'] for r in ev.rows})} files ({where}), {ev.repeats} repeats"
+        )
+        print(heading)
+        print(table(ev))
+        for name, reason in ev.skipped[:5]:
+            print(f"skipped: {reason if reason.startswith(name) else f'{name}: {reason}'}", file=sys.stderr)
+        if len(ev.skipped) > 5:
+            print(f"skipped {len(ev.skipped) - 5} more clips for the same kind of reason", file=sys.stderr)
+        rows += ev.rows
+        tables.append(
+            f"## {heading}\n\n{table(ev, markdown=True)}" if len(corruptions) > 1 else table(ev, markdown=True)
+        )
+        if args.plot:
+            plot = Path(args.plot)
+            plot = (
+                plot.with_name(f"{plot.stem}_{_file_safe(corruption)}{plot.suffix}") if len(corruptions) > 1 else plot
+            )
+            plot_per_motion(ev, plot)
+            print(f"wrote {plot}")
     if args.csv:
-        write_csv(args.csv, ev.rows)
-        print(f"wrote {len(ev.rows)} rows to {args.csv}")
+        write_csv(args.csv, rows)
+        print(f"wrote {len(rows)} rows to {args.csv}")
     if args.markdown:
-        Path(args.markdown).write_text(table(ev, markdown=True) + "\n")
-    if args.plot:
-        plot_per_motion(ev, args.plot)
-        print(f"wrote {args.plot}")
+        Path(args.markdown).write_text("\n\n".join(tables) + "\n")
     return 0
+
+
+def _file_safe(text: str) -> str:
+    """``text`` with every character but letters, digits, '.', '-' and '_' replaced by '_' (a corruption name
+    such as ``segment-gap:left-arm:2`` in a file name)."""
+    return "".join(c if c.isalnum() or c in ".-_" else "_" for c in text)
 
 
 def _parallel(args: argparse.Namespace):
@@ -200,7 +221,11 @@ def build_parser() -> argparse.ArgumentParser:
         description="Corrupt clean clips reproducibly and score methods.",
     )
     ev.add_argument("--data", required=True, help="corpus name, BVH folder or C3D folder")
-    ev.add_argument("--corruption", default="angular-0.5", help="corruption name (default angular-0.5)")
+    ev.add_argument(
+        "--corruption",
+        action="append",
+        help="corruption name (repeatable: one table each; default angular-0.5)",
+    )
     ev.add_argument("--method", action="append", help="method (repeatable); default: noisy + Gaussians")
     ev.add_argument("--repeats", type=int, default=5, help="corrupted copies per clip (default 5)")
     ev.add_argument("--fold", type=int, default=None, help="score only this fold's test clips (0-4)")
@@ -208,7 +233,9 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--limit", type=int, default=None, help="use only the first N files (quick runs)")
     ev.add_argument("--csv", help="write one row per (method, corruption, file, repeat)")
     ev.add_argument("--markdown", help="write the summary table as markdown")
-    ev.add_argument("--plot", help="write a PNG of the error per motion")
+    ev.add_argument(
+        "--plot", help="write a PNG of the error per motion (several corruptions: one PNG each, NAME_CORRUPTION.png)"
+    )
     ev.add_argument("--quiet", action="store_true", help="no progress bar")
     _add_parallel_args(ev)
     ev.set_defaults(func=_evaluate)

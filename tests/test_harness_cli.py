@@ -42,6 +42,23 @@ def test_c3d_folder_evaluation(tmp_path):
         evaluate(str(folder), "segment-gap:right-arm:1", ["gaussian-58ms"], repeats=1, progress=False)
 
 
+def test_cli_evaluate_scores_every_corruption_given(tmp_path, capsys):
+    """--corruption is repeatable: one table per corruption (none was silently dropped), all rows in one CSV,
+    one markdown section and one plot each."""
+    args = ["evaluate", "--data", "sample", "--method", "gaussian-58ms+check", "--repeats", "1", "--quiet"]
+    args += ["--corruption", "none", "--corruption", "angular-0.5", "--corruption", "none"]
+    args += ["--csv", str(tmp_path / "s.csv"), "--markdown", str(tmp_path / "s.md"), "--plot", str(tmp_path / "p.png")]
+    assert main(args) == 0
+    printed = capsys.readouterr().out
+    assert printed.count("sample: none,") == 1 and printed.count("sample: angular-0.5,") == 1
+    rows = list(csv.DictReader((tmp_path / "s.csv").open()))
+    assert {r["corruption"] for r in rows} == {"none", "angular-0.5"}
+    assert {r["method"] for r in rows if r["corruption"] == "none"} >= {"gaussian-58ms+check", "noisy"}
+    markdown = (tmp_path / "s.md").read_text()
+    assert markdown.count("## sample: ") == 2 and markdown.count("| gaussian-58ms+check |") == 2
+    assert (tmp_path / "p_none.png").stat().st_size > 0 and (tmp_path / "p_angular-0.5.png").stat().st_size > 0
+
+
 def test_cli_evaluate_writes_csv(tmp_path, capsys):
     out = tmp_path / "s.csv"
     rc = main(
