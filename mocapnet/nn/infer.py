@@ -204,7 +204,7 @@ def _network_output(
     """``(interpolated channels [T, C_all], the network's output [T, C] for the scored channels idx)`` of one
     clip (``clean_channels``'s arguments)."""
     result = model.interpolate(channels, mask, fps) if isinstance(model, EBD) else lerp_fill(channels, mask)
-    x = torch.as_tensor(result[:, idx], dtype=torch.float32)
+    x = torch.as_tensor(np.ascontiguousarray(result[:, idx]), dtype=torch.float32)  # [:, idx] is column-major
     m = torch.as_tensor(mask[:, idx], dtype=torch.bool)
     w = torch.as_tensor(root_angular_velocity(skeleton, result, fps), dtype=torch.float32)
     if mode == "sequence":
