@@ -11,7 +11,7 @@ from pathlib import Path
 EVALUATE_EXAMPLE = """\
 examples:
   mocapnet evaluate --data sample --corruption angular-0.5 --method gaussian-58ms --method gaussian-125ms
-  mocapnet evaluate --data sample --corruption none --corruption angular-0.1 --method gaussian-58ms+check \
+  mocapnet evaluate --data sample --corruption none --corruption angular-0.1 --method gaussian-58ms+check \\
       --markdown scores.md                                        # one table per corruption
   mocapnet evaluate --data ../shared/data/bvh/bandai_namco_2 --corruption angular-0.5 \\
       --method noisy --method gaussian-58ms --method gaussian-125ms --repeats 2 --csv scores.csv
@@ -59,11 +59,13 @@ failed, 2 for a usage error (nothing cleaned).
 
 
 def _evaluate(args: argparse.Namespace) -> int:
+    from mocapnet.corrupt import check_corruption
     from mocapnet.evaluate.harness import evaluate
     from mocapnet.evaluate.report import plot_per_motion, table, write_csv
 
-    corruptions = list(dict.fromkeys(args.corruption or ["angular-0.5"]))  # in order, each once
-    rows, tables = [], []
+    # every name checked before any clip is scored; files are written only after every corruption was scored
+    corruptions = list(dict.fromkeys(check_corruption(c) for c in args.corruption or ["angular-0.5"]))
+    evaluations = []
     for corruption in corruptions:
         ev = evaluate(
             args.data,
@@ -76,33 +78,35 @@ def _evaluate(args: argparse.Namespace) -> int:
             style=args.style,
             parallel=_parallel(args),
         )
-        where = f"fold {ev.fold} test clips" if ev.fold is not None else "all clips"
-        heading = (
-            f"{ev.data}: {ev.corruption}, {len({r['file'] for r in ev.rows})} files ({where}), {ev.repeats} repeats"
-        )
-        print(heading)
+        print(_evaluation_heading(ev))
         print(table(ev))
         for name, reason in ev.skipped[:5]:
             print(f"skipped: {reason if reason.startswith(name) else f'{name}: {reason}'}", file=sys.stderr)
         if len(ev.skipped) > 5:
             print(f"skipped {len(ev.skipped) - 5} more clips for the same kind of reason", file=sys.stderr)
-        rows += ev.rows
-        tables.append(
-            f"## {heading}\n\n{table(ev, markdown=True)}" if len(corruptions) > 1 else table(ev, markdown=True)
-        )
-        if args.plot:
-            plot = Path(args.plot)
-            plot = (
-                plot.with_name(f"{plot.stem}_{_file_safe(corruption)}{plot.suffix}") if len(corruptions) > 1 else plot
-            )
-            plot_per_motion(ev, plot)
-            print(f"wrote {plot}")
+        evaluations.append(ev)
+    several = len(evaluations) > 1
     if args.csv:
+        rows = [row for ev in evaluations for row in ev.rows]
         write_csv(args.csv, rows)
         print(f"wrote {len(rows)} rows to {args.csv}")
     if args.markdown:
+        tables = [
+            (f"## {_evaluation_heading(ev)}\n\n" if several else "") + table(ev, markdown=True) for ev in evaluations
+        ]
         Path(args.markdown).write_text("\n\n".join(tables) + "\n")
+    for ev in evaluations if args.plot else []:
+        plot = Path(args.plot)
+        plot = plot.with_name(f"{plot.stem}_{_file_safe(str(ev.corruption))}{plot.suffix}") if several else plot
+        plot_per_motion(ev, plot)
+        print(f"wrote {plot}")
     return 0
+
+
+def _evaluation_heading(ev) -> str:
+    """``DATA: CORRUPTION, N files (which clips), R repeats`` of one evaluation."""
+    where = f"fold {ev.fold} test clips" if ev.fold is not None else "all clips"
+    return f"{ev.data}: {ev.corruption}, {len({r['file'] for r in ev.rows})} files ({where}), {ev.repeats} repeats"
 
 
 def _file_safe(text: str) -> str:

@@ -59,6 +59,16 @@ def test_cli_evaluate_scores_every_corruption_given(tmp_path, capsys):
     assert (tmp_path / "p_none.png").stat().st_size > 0 and (tmp_path / "p_angular-0.5.png").stat().st_size > 0
 
 
+def test_cli_evaluate_with_a_bad_corruption_among_several_scores_and_writes_nothing(tmp_path, capsys):
+    args = ["evaluate", "--data", "sample", "--method", "gaussian-58ms", "--repeats", "1", "--quiet"]
+    args += ["--corruption", "none", "--corruption", "bogus-9", "--plot", str(tmp_path / "p.png")]
+    args += ["--csv", str(tmp_path / "s.csv"), "--markdown", str(tmp_path / "s.md")]
+    assert main(args) == 2
+    captured = capsys.readouterr()
+    assert "unknown corruption 'bogus-9'" in captured.err and "sample: none" not in captured.out
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_cli_evaluate_writes_csv(tmp_path, capsys):
     out = tmp_path / "s.csv"
     rc = main(
