@@ -65,7 +65,7 @@ def _evaluate(args: argparse.Namespace) -> int:
 
     # every name checked before any clip is scored; files are written only after every corruption was scored
     corruptions = list(dict.fromkeys(check_corruption(c) for c in args.corruption or ["angular-0.5"]))
-    evaluations = []
+    evaluations, parallel = [], _parallel(args)
     for corruption in corruptions:
         ev = evaluate(
             args.data,
@@ -76,7 +76,7 @@ def _evaluate(args: argparse.Namespace) -> int:
             args.limit,
             progress=not args.quiet,
             style=args.style,
-            parallel=_parallel(args),
+            parallel=parallel,
         )
         print(_evaluation_heading(ev))
         print(table(ev))

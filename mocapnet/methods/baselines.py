@@ -76,10 +76,8 @@ def _gaussian_checked(context: MethodContext, limit: float = CHECK_LIMIT):
     def clean(noisy: Motion, mask: np.ndarray) -> np.ndarray:
         filled = lerp_fill(noisy.channels, mask)
         scored = noisy.skeleton.scored_mask
-        smooth = gaussian_smooth(filled[:, scored], 0.058, noisy.fps)
-        out = filled.copy()
-        out[:, scored] = limit_change(filled[:, scored], smooth, limit)
-        return _scored_only(noisy, out)
+        filled[:, scored] = limit_change(filled[:, scored], gaussian_smooth(filled[:, scored], 0.058, noisy.fps), limit)
+        return _scored_only(noisy, filled)
 
     return clean
 

@@ -92,23 +92,26 @@ def _resolver(method: str, path: str | None) -> Callable[[Motion], object]:
     return shipped
 
 
+def _index_entries() -> list[dict]:
+    """The entries of the shipped ``checkpoints/index.json``, read as JSON (no torch); none when it is absent."""
+    return json.loads(_INDEX.read_text())["checkpoints"] if _INDEX.exists() else []
+
+
 def shipped_methods(skeleton: Skeleton) -> dict[str, dict]:
-    """The learned methods shipped for ``skeleton``'s topology (``checkpoints/index.json``, read as JSON: no
-    torch), each with its index entry (``corpus``, training ``fps``, ...), e.g. ``{"ebf": {...}, "ebd": {...}}``."""
+    """The learned methods shipped for ``skeleton``'s topology (``_index_entries``), each with its index entry
+    (``corpus``, training ``fps``, ...), e.g. ``{"ebf": {...}, "ebd": {...}}``."""
     from mocapnet.nn.features import topology_hash
 
-    if not _INDEX.exists():
-        return {}
     mine = topology_hash(skeleton)
-    entries = [e for e in json.loads(_INDEX.read_text())["checkpoints"] if e.get("skeleton_hash") == mine]
+    entries = [e for e in _index_entries() if e.get("skeleton_hash") == mine]
     return {m: e for m in (*(v.name for v in VARIANTS), "ebf") for e in entries if serves(e, m)}
 
 
 def _shipped_ebf_recipes() -> str:
-    """What ``ebf`` runs, per corpus, from the shipped index (read as JSON; no torch)."""
-    if not _INDEX.exists():
+    """What ``ebf`` runs, per corpus, from the shipped index (``_index_entries``)."""
+    entries = [e for e in _index_entries() if e.get("ebf")]
+    if not entries:
         return "none shipped"
-    entries = [e for e in json.loads(_INDEX.read_text())["checkpoints"] if e.get("ebf")]
     return "; ".join(f"{e['corpus']}: {e['method']} ({e.get('recipe', '')}, {e.get('budget', '')})" for e in entries)
 
 
