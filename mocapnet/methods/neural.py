@@ -54,9 +54,12 @@ _HELP = (
 _EBD_EXTRA = (
     ", rehearse=N (per gap N stand-in gaps where the truth is known; a gap keeps the share of the network's correction"
     " that fitted them), rehearse_mix=0 (all or nothing: interpolate the gaps where the network lost),"
-    " rehearse_pool=W (0-1: weight of the share fitted to all the clip's stand-ins together)"
+    " rehearse_pool=W (0-1: weight of the share fitted to all the clip's stand-ins together),"
+    " gate_end=S (seconds: gaps this long or longer get the network's whole correction, shorter ones a share"
+    " growing with their length)"
 )
 _HELP_PAIR = "{what}; checkpoints: EBD,EBF, default: the shipped ones for the skeleton; option mode=sequence|windowed"
+_BLEND_OPTIONS = ("rehearse", "rehearse_margin", "rehearse_min_s", "rehearse_mix", "rehearse_pool", "gate_end")
 _INDEX = Path(__file__).resolve().parents[1] / "checkpoints" / "index.json"
 
 
@@ -226,13 +229,15 @@ def _single(method: str):
         rehearse_min_s: float | None = None,
         rehearse_mix: int | None = None,
         rehearse_pool: float | None = None,
+        gate_end: float | None = None,
     ):
         """``limit``: EBF's self-check factor (``selfcheck.limit_change``; default: the checkpoint's, 0: off).
         ``tta``: the self-ensemble (``tta_passes``). ``blend``: an angle method whose output is averaged with
         the network's (weight 1/2, on the circle) — a blend, reported under its own method string.
         ``rehearse``, ``rehearse_margin``, ``rehearse_min_s``: EBD's rehearsal check (``ebd.GapBlend``; default:
-        the checkpoint's blend; ``rehearse=0``: off)."""
-        from mocapnet.nn.ebd import as_blend
+        the checkpoint's blend; ``rehearse=0``: off). ``gate_end``: EBD's length gate ends here (s; ``GapBlend.gate_s``
+        keeps its start)."""
+        from mocapnet.nn.ebd import GapBlend, as_blend
         from mocapnet.nn.features import scored_index
         from mocapnet.nn.infer import clean_channels
 
@@ -256,20 +261,19 @@ def _single(method: str):
                 ("rehearse_min_s", rehearse_min_s),
                 ("rehearse_mix", rehearse_mix),
                 ("rehearse_pool", rehearse_pool),
+                ("gate_end", gate_end),
             )
             if v is not None
         }
         if rehearse is not None and (isinstance(rehearse, bool) or not isinstance(rehearse, int)):
             raise ValueError(f"{method}: rehearse is a whole number of stand-in gaps, got {rehearse!r}")
         if any(isinstance(v, (bool, str)) for v in rehearsal.values()):
-            raise ValueError(
-                f"{method}: rehearse, rehearse_margin, rehearse_min_s, rehearse_mix and rehearse_pool take numbers, "
-                f"got {rehearsal}"
-            )
+            raise ValueError(f"{method}: {', '.join(_BLEND_OPTIONS)} take numbers, got {rehearsal}")
         if rehearsal and method != "ebd":
-            raise ValueError(
-                f"{method}: rehearse, rehearse_margin, rehearse_min_s, rehearse_mix, rehearse_pool are EBD options"
-            )
+            raise ValueError(f"{method}: {', '.join(_BLEND_OPTIONS)} are EBD options")
+        gate_end = rehearsal.pop("gate_end", None)
+        if gate_end is not None and not (np.isfinite(float(gate_end)) and float(gate_end) > 0):
+            raise ValueError(f"{method}: gate_end must be a time > 0 (s), got {gate_end!r}")
         if rehearsal:
             try:
                 checked = as_blend(rehearsal)
@@ -279,10 +283,20 @@ def _single(method: str):
                 raise ValueError(f"{method}: rehearse, rehearse_margin and rehearse_min_s must be finite")
             rehearsal = {k: getattr(checked, k) for k in rehearsal}  # the values as_blend checked and converted
 
+        def blend_of(model) -> GapBlend | str:
+            """The model's blend with the options given (``"checkpoint"``: as stored)."""
+            if not rehearsal and gate_end is None:
+                return "checkpoint"
+            stored = model.blend()
+            gate = stored.gate_s if gate_end is None else (stored.gate_s[0], float(gate_end))
+            if gate[1] <= gate[0]:
+                raise ValueError(f"{method}: gate_end {gate[1]:g} s must be after the gate's start {gate[0]:g} s")
+            return dataclasses.replace(stored, **rehearsal, gate_s=gate)
+
         def clean(noisy: Motion, mask: np.ndarray) -> np.ndarray:
             model = resolve(noisy)
             sk, fps = noisy.skeleton, noisy.fps
-            gap_blend = dataclasses.replace(model.blend(), **rehearsal) if rehearsal else "checkpoint"
+            gap_blend = blend_of(model)
 
             def once(channels: np.ndarray, gaps: np.ndarray) -> np.ndarray:
                 return clean_channels(model, channels, gaps, sk, fps, mode, gap_blend, change_limit=limit)

@@ -296,3 +296,29 @@ def test_rehearse_is_an_ebd_option_of_whole_numbers():
     ):
         with pytest.raises(ValueError, match="rehears"):
             as_blend(bad)
+
+
+def test_gate_end_option_shrinks_the_network_share_of_short_gaps(sample):
+    """``ebd:gate_end=S``: gaps shorter than S keep a smaller share of the network's correction to the spline base;
+    observed samples never change; a gate that ends before it starts, or the option on a denoiser, is refused."""
+    from mocapnet.fill import gap_fill
+    from mocapnet.methods.registry import build_method
+
+    from mocapnet.nn.features import scored_index
+
+    motion = sample.with_channels(sample.channels[:600])
+    mask = np.zeros_like(motion.channels, dtype=bool)
+    mask[300:312, scored_index(motion.skeleton)[12:15]] = True  # one 12-frame gap (0.1 s at 120 fps) of one joint
+    base = gap_fill(np.where(mask, np.nan, motion.channels), mask, GAP_BLEND.spline_max_s * motion.fps)
+    shipped = build_method("ebd:rehearse=0").clean(motion, mask)
+    longer = build_method("ebd:rehearse=0,gate_end=0.5").clean(motion, mask)
+    np.testing.assert_array_equal(longer[~mask], motion.channels[~mask])
+    moved, moved_less = np.abs(shipped - base)[mask], np.abs(longer - base)[mask]
+    assert moved.max() > 1e-3  # the shipped gate (0.2 s) lets the network correct this gap
+    # the gate starts at 1/30 s (4 frames at 120 fps): its weight is (12 - 4) / (24 - 4) at 0.2 s, (12 - 4) / (60 - 4)
+    np.testing.assert_allclose(moved_less, moved * (8 / 56) / (8 / 20), rtol=1e-6, atol=1e-9)
+    for bad in ("ebd:gate_end=0", "ebd:gate_end=-1", "ebd:gate_end=inf", "ebf:gate_end=0.3"):
+        with pytest.raises(ValueError, match="gate_end"):
+            build_method(bad)
+    with pytest.raises(ValueError, match="gate_end 0.01 s must be after"):
+        build_method("ebd:gate_end=0.01").clean(motion, mask)
