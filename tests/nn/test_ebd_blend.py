@@ -303,7 +303,6 @@ def test_gate_end_option_shrinks_the_network_share_of_short_gaps(sample):
     observed samples never change; a gate that ends before it starts, or the option on a denoiser, is refused."""
     from mocapnet.fill import gap_fill
     from mocapnet.methods.registry import build_method
-
     from mocapnet.nn.features import scored_index
 
     motion = sample.with_channels(sample.channels[:600])
