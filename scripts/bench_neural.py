@@ -33,7 +33,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         "--split",
         type=bench.split_arg,
         default="test",
-        help="fold-0 test clips (test), fold-1 clips for selection (val), or every clip of one style "
+        help="fold-0 test clips (test), fold-1 clips for selection (val; fast: the same, the clips with the most "
+        "fast movement first, --clips N takes the first N), or every clip of one style "
         "(style:NAME, for models trained with data.holdout_style=NAME)",
     )
     parser.add_argument(
@@ -57,7 +58,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
             "the gap-length bins are scored on fold-0 test clips: give --skip-bins with --split val or style:NAME"
         )
     if args.split != "test" and "bandai1" in (args.corpus or ["bandai1"]):
-        parser.error("bandai1 is test only (never select on it): give --corpus bandai2 with --split val or style:NAME")
+        parser.error(
+            "bandai1 is test only (never select on it): give --corpus bandai2 with --split val, fast or style:NAME"
+        )
     return args
 
 

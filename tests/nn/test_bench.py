@@ -6,6 +6,7 @@ from __future__ import annotations
 import importlib.util
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from mocapnet.evaluate import neural_bench as bench
@@ -98,3 +99,33 @@ def test_style_split_scores_only_that_style_and_tunes_without_it(monkeypatch):
         only_test = Corpus("fake", Path("."), motions, {n: 0 if "_elderly_" in n else 2 for n in names})
         monkeypatch.setattr(bench, "load_corpus", lambda name, progress: only_test)
         bench.split_clips("fake", "style:elderly", 4)
+
+
+def test_fast_split_is_fold_1_with_the_most_fast_movement_first(monkeypatch):
+    """``fast``: fold-1 clips only, ordered by ``fast_motion`` (jittery clips first), ``--clips N`` the first N;
+    bandai1 cannot be selected on with it."""
+    from mocapnet.corpus import Corpus
+    from mocapnet.evaluate.bvh_bench import synthetic
+
+    base = synthetic(4, chain=True)
+    rng = np.random.default_rng(0)
+    smooth = np.repeat(base.channels[:1], 90, axis=0) + np.linspace(0, 30, 90)[:, None]  # 90 frames, slow
+    motions, folds = [], {}
+    for i in range(15):  # clip i gets jitter i / 4 degrees on every channel; folds 0..4 in turn
+        channels = smooth + rng.normal(0, i / 4 + 1e-3, smooth.shape)
+        motions.append(type(base)(base.skeleton, channels, base.fps, f"clip{i:02d}"))
+        folds[f"clip{i:02d}"] = i % 5
+    corpus = Corpus("fake", Path("."), motions, folds)
+    monkeypatch.setattr(bench, "load_corpus", lambda name, progress: corpus)
+    _, clips, train = bench.split_clips("fake", "fast", None)
+    assert [m.name for m in clips] == ["clip11", "clip06", "clip01"]  # fold 1, most jitter first
+    assert [m.name for m in bench.split_clips("fake", "fast", 2)[1]] == ["clip11", "clip06"]
+    assert all(folds[m.name] not in (0, 1) for m in train)
+    speeds = [bench.fast_motion(m) for m in clips]
+    assert speeds == sorted(speeds, reverse=True) and speeds[-1] > 0
+    spec = importlib.util.spec_from_file_location("bench_neural", SCRIPT)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    with pytest.raises(SystemExit):
+        module.parse_args(["--split", "fast", "--corpus", "bandai1", "--skip-bins"])
+    assert module.parse_args(["--split", "fast", "--corpus", "bandai2", "--skip-bins"]).split == "fast"
