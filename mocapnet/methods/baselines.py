@@ -11,6 +11,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from mocapnet.adaptive_smooth import cv_gaussian
 from mocapnet.corrupt import corrupt_motion, seed_for
 from mocapnet.fill import gaussian_smooth, lerp_fill, mask_groups, spline_fill
 from mocapnet.methods.registry import MethodContext, register
@@ -77,6 +78,22 @@ def _gaussian_checked(context: MethodContext, limit: float = CHECK_LIMIT):
         filled = lerp_fill(noisy.channels, mask)
         scored = noisy.skeleton.scored_mask
         filled[:, scored] = limit_change(filled[:, scored], gaussian_smooth(filled[:, scored], 0.058, noisy.fps), limit)
+        return _scored_only(noisy, filled)
+
+    return clean
+
+
+@register(
+    "gaussian-cv",
+    "angles",
+    help="Gaussian smoothing with each channel's width chosen by leave-one-out cross-validation from 0.25 (the input "
+    "kept) to 16 frames (adaptive_smooth.cv_gaussian; gaps filled linearly first); no training, no noise estimate",
+)
+def _gaussian_cv(context: MethodContext):
+    def clean(noisy: Motion, mask: np.ndarray) -> np.ndarray:
+        filled = lerp_fill(noisy.channels, mask)
+        scored = noisy.skeleton.scored_mask
+        filled[:, scored] = cv_gaussian(filled[:, scored])[0]
         return _scored_only(noisy, filled)
 
     return clean

@@ -130,6 +130,7 @@ _LAZY: dict[str, str | tuple[str, ...]] = {
     "gaussian-tuned": "mocapnet.methods.baselines",
     "lerp+gaussian-58ms": "mocapnet.methods.baselines",
     "gaussian-58ms+check": "mocapnet.methods.baselines",
+    "gaussian-cv": "mocapnet.methods.baselines",
     "lerp": "mocapnet.methods.baselines",
     "spline": "mocapnet.methods.baselines",
     "hold": "mocapnet.methods.extrapolate",
