@@ -11,7 +11,7 @@ from pathlib import Path
 EVALUATE_EXAMPLE = """\
 examples:
   mocapnet evaluate --data sample --corruption angular-0.5 --method gaussian-58ms --method gaussian-125ms
-  mocapnet evaluate --data sample --corruption none --corruption angular-0.1 --method gaussian-58ms+check \\
+  mocapnet evaluate --data sample --corruption none --corruption angular-0.1 --method gaussian-cv \\
       --markdown scores.md                                        # one table per corruption
   mocapnet evaluate --data ../shared/data/bvh/bandai_namco_2 --corruption angular-0.5 \\
       --method noisy --method gaussian-58ms --method gaussian-125ms --repeats 2 --csv scores.csv
@@ -35,7 +35,7 @@ examples:
   mocapnet clean take.c3d -o take_filled.c3d --method pca          # one filler for every gap, unchecked
   mocapnet clean take.c3d -o take_filled.c3d --method knn --database clean_takes/
   mocapnet clean take.c3d -o take_live.c3d --method extrapolate+cm
-  mocapnet clean walk.bvh -o walk_clean.bvh                       # shipped EBF for the skeleton, else checked Gaussian
+  mocapnet clean walk.bvh -o walk_clean.bvh                       # shipped EBF for the skeleton, else gaussian-cv
   mocapnet clean walk.bvh -o walk_clean.bvh --method gaussian-58ms
   mocapnet clean walk.bvh -o walk_filled.bvh --mask missing.npy   # bool [T, C] or [T, J], True = missing
   mocapnet clean archive/ -o cleaned/ --report cleaned/report.csv  # a folder (recursing), on all local cores
@@ -256,7 +256,7 @@ def build_parser() -> argparse.ArgumentParser:
     cl.add_argument(
         "--method",
         help="method (default auto. BVH: the EBF shipped for the skeleton, ebd+ebf with --mask, on any other "
-        "skeleton gaussian-58ms+check; C3D: per gap rigid-body, pca, knn with --database, spline or lerp, each "
+        "skeleton or frame rate gaussian-cv; C3D: per gap rigid-body, pca, knn with --database, spline or lerp, each "
         "fill checked, implausible gaps left missing)",
     )
     cl.add_argument("--model", help="checkpoint(s) for a neural method, comma-separated for ebd+ebf")

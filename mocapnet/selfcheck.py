@@ -1,6 +1,6 @@
 """The self-check of the denoisers: a cleaned clip is pulled back toward its input on every channel that it
 changed by much more than the noise that channel shows. Numpy only (EBF's checkpoints store their factor,
-``change_limit``; the ``gaussian-58ms+check`` baseline and the BVH ``auto`` fallback use it too).
+``change_limit``; the ``gaussian-58ms+check`` baseline uses it too).
 """
 
 from __future__ import annotations

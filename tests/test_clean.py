@@ -124,9 +124,9 @@ def test_c3d_report_numbers_frames_as_the_file_does(tmp_path):
     assert "frames 1377-1386 (10 frames)" in summary_table([gap], first_frame=1367)
 
 
-def test_default_clean_of_a_skeleton_without_networks_runs_the_checked_gaussian(tmp_path, cmu):
+def test_default_clean_of_a_skeleton_without_networks_runs_the_cross_validated_gaussian(tmp_path, cmu):
     """A BVH whose skeleton no shipped network knows (here the CMU rig with one joint renamed) is cleaned by
-    default with gaussian-58ms+check, and the result says so and why; its unscored channels and its gaps'
+    default with gaussian-cv, and the result says so and why; its unscored channels and its gaps'
     neighbours stay as they were. Asking for ebf by name still fails with the skeleton named."""
     from mocapnet.io import read_bvh
 
@@ -138,7 +138,7 @@ def test_default_clean_of_a_skeleton_without_networks_runs_the_checked_gaussian(
     mask[80:95, scored[4]] = True
     np.save(tmp_path / "mask.npy", mask)
     result = clean_file(src, tmp_path / "out.bvh", CleanOptions(mask=str(tmp_path / "mask.npy")))
-    assert result.method == "gaussian-58ms+check" and "no EBF shipped for this skeleton" in result.message
+    assert result.method == "gaussian-cv" and "no EBF shipped for this skeleton" in result.message
     assert result.details["auto"].startswith("no EBF shipped")
     out = read_bvh(tmp_path / "out.bvh").channels
     unscored = ~clip.skeleton.scored_mask
@@ -154,15 +154,15 @@ def test_default_clean_of_a_shipped_skeleton_runs_its_networks(short_bvh, tmp_pa
     assert result.method == "ebf" and "auto: EBF shipped for this skeleton (cmu120)" in result.message
 
 
-def test_default_clean_at_another_frame_rate_than_the_network_runs_the_checked_gaussian(tmp_path, cmu):
-    """The shipped CMU networks count frames at 120 fps: a 30 fps file of the same rig gets the checked
-    Gaussian, and the reason names both rates."""
+def test_default_clean_at_another_frame_rate_than_the_network_runs_the_cross_validated_gaussian(tmp_path, cmu):
+    """The shipped CMU networks count frames at 120 fps: a 30 fps file of the same rig gets gaussian-cv, and
+    the reason names both rates."""
     import dataclasses
 
     src = tmp_path / "walk30.bvh"
     src.write_text(format_bvh(dataclasses.replace(cmu.with_channels(cmu.channels[:90]), fps=30.0)))
     result = clean_file(src, tmp_path / "out.bvh", CleanOptions())
-    assert result.method == "gaussian-58ms+check"
+    assert result.method == "gaussian-cv"
     assert "was trained at 120 fps, this clip is at 30 fps" in result.details["auto"]
 
 

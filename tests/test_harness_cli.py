@@ -142,7 +142,7 @@ def test_style_filter(shared):
 
 
 def test_clean_of_a_skeleton_without_shipped_model(tmp_path, capsys):
-    """The default (auto) cleans it with the checked Gaussian and says so; --method ebf refuses it by name."""
+    """The default (auto) cleans it with gaussian-cv and says so; --method ebf refuses it by name."""
     from mocapnet.io import write_bvh
     from mocapnet.motion import Motion, Skeleton
 
@@ -155,7 +155,7 @@ def test_clean_of_a_skeleton_without_shipped_model(tmp_path, capsys):
     )
     write_bvh(tmp_path / "tiny.bvh", Motion(sk, np.zeros((10, 9)), 30.0))
     assert main(["clean", str(tmp_path / "tiny.bvh"), "-o", str(tmp_path / "out.bvh"), "--quiet"]) == 0
-    assert "gaussian-58ms+check" in capsys.readouterr().out and (tmp_path / "out.bvh").exists()
+    assert "gaussian-cv" in capsys.readouterr().out and (tmp_path / "out.bvh").exists()
     args = ["clean", str(tmp_path / "tiny.bvh"), "-o", str(tmp_path / "out2.bvh"), "--method", "ebf"]
     assert main(args) == 2
     err = capsys.readouterr().err

@@ -19,6 +19,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
         "mocapnet.segments",
         "mocapnet.fill",
         "mocapnet.selfcheck",
+        "mocapnet.adaptive_smooth",
         "mocapnet.parallel",
     ),
     ("mocapnet", "mocapnet.corrupt", "mocapnet.corpus"),  # the package __init__ re-exports io and motion

@@ -6,10 +6,12 @@ Per clip (``auto_plan``):
 * a skeleton with a shipped EBF (``mocapnet/checkpoints/index.json``, matched by topology) trained at the
   clip's frame rate: ``ebf``; with gaps to fill, ``ebd+ebf`` when an EBD is shipped too (else ``ebf``, which
   bridges gaps linearly first);
-* any other skeleton or frame rate: ``gaussian-58ms+check`` — gaps filled linearly, Gaussian smoothing of
-  58 ms, each channel's change capped at a few times the white noise it shows (``selfcheck.limit_change``),
-  so nearly clean input keeps its motion. The networks are trained on one skeleton and frame rate each
-  (their filters count frames).
+* any other skeleton or frame rate: ``gaussian-cv`` — gaps filled linearly, then each channel smoothed by the
+  Gaussian whose width leave-one-out cross-validation picks (``adaptive_smooth.cv_gaussian``), from none (clean
+  or fast motion keeps its samples) to 16 frames (heavy noise on slow motion). The networks are trained on one
+  skeleton and frame rate each (their filters count frames). It replaced ``gaussian-58ms+check`` (session 23,
+  rule and figures in ``benchmarks/results/gaussian_cv.md``), which made lightly noisy fast motion worse than
+  its input.
 
 ``mocapnet clean`` (no ``--method``) reports which one ran and why; ``--method ebf`` still asks for the
 network and fails with a clear message on a skeleton without one.
@@ -27,7 +29,7 @@ from mocapnet.motion import Motion, Skeleton
 from mocapnet.nn.variants import same_rate
 
 #: What ``auto`` runs on a skeleton without a shipped network.
-FALLBACK = "gaussian-58ms+check"
+FALLBACK = "gaussian-cv"
 
 
 def auto_plan(skeleton: Skeleton, fps: float, has_gaps: bool) -> tuple[str, str]:
@@ -52,7 +54,8 @@ def auto_plan(skeleton: Skeleton, fps: float, has_gaps: bool) -> tuple[str, str]
     "auto",
     "angles",
     help="the EBF shipped for the skeleton and frame rate (ebd+ebf when there are gaps and an EBD is shipped); "
-    f"on any other skeleton or rate {FALLBACK} (Gaussian 58 ms, self-checked); mocapnet clean's default for BVH",
+    f"on any other skeleton or rate {FALLBACK} (per-channel Gaussian width by cross-validation); mocapnet clean's "
+    "default for BVH",
 )
 def _auto(context: MethodContext) -> Callable[[Motion, np.ndarray], np.ndarray]:
     built: dict[str, Callable] = {}
