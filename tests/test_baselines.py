@@ -38,7 +38,16 @@ def test_lerp_and_spline_fill():
 def test_methods_only_touch_scored_channels(cmu_short):
     noisy, mask = corrupt_motion(cmu_short, "noise+gaps", np.random.default_rng(0))
     scored = cmu_short.skeleton.scored_mask
-    for name in ("gaussian-58ms", "gaussian-125ms", "lerp", "spline", "lerp+gaussian-58ms", "gaussian-58ms+check"):
+    names = (
+        "gaussian-58ms",
+        "gaussian-125ms",
+        "lerp",
+        "spline",
+        "lerp+gaussian-58ms",
+        "gaussian-58ms+check",
+        "gaussian-cv",
+    )
+    for name in names:
         out = build_method(name).clean(cmu_short.with_channels(noisy), mask)
         assert np.isfinite(out).all(), name
         np.testing.assert_array_equal(out[:, ~scored], noisy[:, ~scored])
