@@ -23,7 +23,7 @@ from mocapnet.io.atomic import MocapFileError, atomic_output
 if TYPE_CHECKING:
     from mocapnet.parallel import Parallel
 
-REPORT_FIELDS = ("file", "output", "status", "method", "frames", "samples_filled", "seconds", "error")
+REPORT_FIELDS = ("file", "output", "status", "method", "reason", "frames", "samples_filled", "seconds", "error")
 CLEANED, UP_TO_DATE, FAILED = "cleaned", "up to date", "failed"
 # Errors that describe a bad input (their message names the file); anything else also gets its type name.
 _INPUT_ERRORS = (MocapFileError, ValueError, LookupError, FileNotFoundError)
@@ -33,7 +33,8 @@ _INPUT_ERRORS = (MocapFileError, ValueError, LookupError, FileNotFoundError)
 class FileReport:
     """One file of a batch: what was done, in how many seconds, or why it failed (``error``).
 
-    ``frames`` and ``samples_filled`` are those of ``CleanResult``; ``details`` its method-specific facts.
+    ``frames`` and ``samples_filled`` are those of ``CleanResult``; ``details`` its method-specific facts;
+    ``reason`` why the default (``auto``) ran ``method`` on this file, when it chose.
     """
 
     file: str
@@ -45,6 +46,11 @@ class FileReport:
     seconds: float = 0.0
     error: str = ""
     details: dict = field(default_factory=dict)
+
+    @property
+    def reason(self) -> str:
+        """Why ``auto`` chose ``method`` (its ``details["auto"]``), else empty."""
+        return str(self.details.get("auto", ""))
 
     @classmethod
     def from_result(cls, result: CleanResult, seconds: float) -> FileReport:
@@ -158,7 +164,8 @@ def write_report(path: str | os.PathLike, reports: Sequence[FileReport]) -> None
     kind = report_format(path)
     with atomic_output(path) as tmp:
         if kind == "json":
-            tmp.write_text(json.dumps([asdict(r) for r in reports], indent=1, default=str) + "\n")
+            rows = [asdict(r) | {"reason": r.reason} for r in reports]
+            tmp.write_text(json.dumps(rows, indent=1, default=str) + "\n")
             return
         with open(tmp, "w", newline="") as fh:
             writer = csv.DictWriter(fh, fieldnames=list(REPORT_FIELDS))

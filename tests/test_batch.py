@@ -149,6 +149,10 @@ def test_single_file_report_and_usage_errors(tmp_path, capsys):
     assert main(["clean", str(SAMPLE_BVH), "-o", str(out), "--method", "lerp", "--report", str(report)]) == 0
     (row,) = list(csv.DictReader(report.open()))
     assert row["status"] == "cleaned" and row["method"] == "lerp" and int(row["frames"]) == 2752
+    assert row["reason"] == ""  # the method was named, not chosen
+    assert main(["clean", str(SAMPLE_BVH), "-o", str(tmp_path / "auto.bvh"), "--report", str(report), "--quiet"]) == 0
+    (row,) = list(csv.DictReader(report.open()))
+    assert row["method"] == "ebf" and row["reason"].startswith("EBF shipped for this skeleton")
     folder = tmp_path / "f"
     folder.mkdir()
     assert main(["clean", str(folder), "-o", str(folder), "--workers", "0"]) == 2
