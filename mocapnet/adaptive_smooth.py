@@ -1,10 +1,13 @@
 """Gaussian smoothing with each channel's width chosen from the data by leave-one-out cross-validation.
 
 A linear smoother ``y = S x`` has the leave-one-out residual ``(x_t - y_t) / (1 - S_tt)`` at every frame (the
-value predicted from the other frames, exactly, for any linear smoother). For a Gaussian kernel ``S_tt`` is its
-centre weight ``w0``, so each width's cross-validation score costs one filter pass. Per channel the width with
-the smallest mean squared residual wins: heavy noise on slow motion gets a wide kernel, light noise or fast
-motion a narrow one, without a noise estimate and without training. Numpy/scipy only.
+value predicted from the other frames, exactly, for any linear smoother). For a Gaussian kernel with edges padded
+by the nearest value, ``S_tt`` is the kernel's centre weight ``w0`` inside the clip and ``(1 + w0) / 2`` at its
+first and last frame (the padding repeats them), so each width's cross-validation score costs one filter pass.
+Per channel the width with the smallest mean squared residual over the observed frames wins: heavy noise on slow
+motion gets a wide kernel, light noise or fast motion a narrow one, without a noise estimate and without
+training. Only widths whose kernel fits in the clip (``2·radius + 1 <= T``) are candidates, so a very short clip
+keeps its samples. Numpy/scipy only.
 """
 
 from __future__ import annotations
@@ -23,36 +26,64 @@ COLUMN_BLOCK = 16
 TRUNCATE = 4.0
 
 
+def kernel_radius(sigma: float) -> int:
+    """The radius (frames) of ``gaussian_filter1d``'s kernel of std ``sigma`` (frames)."""
+    return int(TRUNCATE * sigma + 0.5)
+
+
 def centre_weight(sigma: float) -> float:
     """The centre tap of ``gaussian_filter1d``'s normalised kernel of std ``sigma`` (frames)."""
-    radius = int(TRUNCATE * sigma + 0.5)
+    radius = kernel_radius(sigma)
     taps = np.exp(-0.5 * (np.arange(-radius, radius + 1) / sigma) ** 2)
     return float(1.0 / taps.sum())
 
 
+def _self_weights(sigma: float, n_frames: int) -> np.ndarray:
+    """``S_tt`` ``[T, 1]`` of the Gaussian of std ``sigma`` with nearest-value padding: ``w0``, and ``(1 + w0) / 2``
+    at the first and last frame."""
+    w0 = centre_weight(sigma)
+    out = np.full((n_frames, 1), w0)
+    out[[0, -1]] = (1.0 + w0) / 2.0
+    return out
+
+
 def cv_gaussian(
-    channels: np.ndarray, grid_frames: tuple[float, ...] = SIGMA_GRID_FRAMES
+    channels: np.ndarray,
+    grid_frames: tuple[float, ...] = SIGMA_GRID_FRAMES,
+    observed: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """``channels [T, C]`` (degrees, any branch; unwrapped along time here) smoothed per channel by the Gaussian
-    of ``grid_frames`` (std, frames) with the smallest leave-one-out error → ``(smoothed [T, C] float64 on each
-    sample's own branch, chosen std [C] in frames)``. Edges are padded with the nearest value (as
-    ``fill.gaussian_smooth``). Channels with fewer than 3 frames are returned unchanged (std 0)."""
+    of ``grid_frames`` (std, frames, each ≥ 0.25) with the smallest leave-one-out error → ``(smoothed [T, C]
+    float64 on each sample's own branch, chosen std [C] in frames)``. ``observed [T, C]`` (bool): the frames whose
+    residuals are scored (default all; e.g. not the samples a gap filler made up). Edges are padded with the
+    nearest value (as ``fill.gaussian_smooth``). Widths whose kernel does not fit in the clip are skipped; a
+    channel no width fits, one with a non-finite value or one without a scored frame comes back unchanged (std 0).
+    """
     x = np.asarray(channels, dtype=np.float64)
+    if x.ndim != 2:
+        raise ValueError(f"cv_gaussian: channels must be [T, C], got shape {x.shape}")
+    if any(not (np.isfinite(s) and s >= 0.25) for s in grid_frames):
+        raise ValueError(f"cv_gaussian: every width must be a number of frames >= 0.25, got {grid_frames}")
+    if observed is not None and np.shape(observed) != x.shape:
+        raise ValueError(f"cv_gaussian: observed {np.shape(observed)} does not match channels {x.shape}")
+    n = len(x)
     out, chosen = x.copy(), np.zeros(x.shape[1])
-    if len(x) < 3 or not grid_frames:
-        return out, chosen
-    weights = {s: centre_weight(s) for s in grid_frames}
+    fits = [s for s in grid_frames if 2 * kernel_radius(s) + 1 <= n]
+    divisors = {s: 1.0 - _self_weights(s, n) for s in fits}
     for c in range(0, x.shape[1], COLUMN_BLOCK):
         cols = slice(c, c + COLUMN_BLOCK)
         raw = x[:, cols]
         unwrapped = np.unwrap(raw, period=360.0, axis=0)
-        best = np.full(unwrapped.shape[1], np.inf)
-        for sigma, w0 in weights.items():
+        weight = np.ones(raw.shape) if observed is None else np.asarray(observed[:, cols], dtype=np.float64)
+        counted = weight.sum(axis=0)
+        best = np.full(raw.shape[1], np.inf)
+        usable = np.isfinite(raw).all(axis=0) & (counted > 0)
+        for sigma in fits:
             smooth = gaussian_filter1d(unwrapped, sigma, axis=0, mode="nearest", truncate=TRUNCATE)
-            score = np.mean(((unwrapped - smooth) / (1.0 - w0)) ** 2, axis=0)
-            better = score < best
+            score = (weight * ((unwrapped - smooth) / divisors[sigma]) ** 2).sum(axis=0) / np.maximum(counted, 1.0)
+            better = usable & (score < best)
             if better.any():
                 best[better] = score[better]
-                chosen[c : c + unwrapped.shape[1]][better] = sigma
+                chosen[c : c + raw.shape[1]][better] = sigma
                 out[:, cols][:, better] = smooth[:, better] + (raw - unwrapped)[:, better]
     return out, chosen

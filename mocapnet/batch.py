@@ -23,7 +23,7 @@ from mocapnet.io.atomic import MocapFileError, atomic_output
 if TYPE_CHECKING:
     from mocapnet.parallel import Parallel
 
-REPORT_FIELDS = ("file", "output", "status", "method", "reason", "frames", "samples_filled", "seconds", "error")
+REPORT_FIELDS = ("file", "output", "status", "method", "frames", "samples_filled", "seconds", "error", "reason")
 CLEANED, UP_TO_DATE, FAILED = "cleaned", "up to date", "failed"
 # Errors that describe a bad input (their message names the file); anything else also gets its type name.
 _INPUT_ERRORS = (MocapFileError, ValueError, LookupError, FileNotFoundError)
@@ -34,7 +34,8 @@ class FileReport:
     """One file of a batch: what was done, in how many seconds, or why it failed (``error``).
 
     ``frames`` and ``samples_filled`` are those of ``CleanResult``; ``details`` its method-specific facts;
-    ``reason`` why the default (``auto``) ran ``method`` on this file, when it chose.
+    ``reason`` why the BVH default (``auto``) ran ``method`` on this file (C3D's ``auto`` chooses per gap: see
+    ``details["gaps"]``).
     """
 
     file: str

@@ -103,8 +103,8 @@ def read_mask(path: str | os.PathLike, motion) -> np.ndarray:
 
 def clean_bvh_file(src: Path, out: Path, options: CleanOptions) -> CleanResult:
     """Denoise (and with a mask, fill) a BVH file with a joint-angle method and write the result. The default
-    (``auto``, ``mocapnet.methods.auto_angles``): the networks shipped for the skeleton, else a self-checked
-    Gaussian; the result's message and ``details["auto"]`` say which and why."""
+    (``auto``, ``mocapnet.methods.auto_angles``): the networks shipped for the skeleton, else ``gaussian-cv``;
+    the result's message and ``details["auto"]`` say which and why."""
     from mocapnet.io import read_bvh, write_bvh
     from mocapnet.methods.registry import build_method
 

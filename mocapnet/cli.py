@@ -51,7 +51,7 @@ output folder, each exactly as the one-file clean would do it, in parallel on Da
 core, 1 torch/BLAS thread each; --workers 0 runs them one by one in this process). A file that fails is
 reported and skipped; outputs newer than their input are left alone unless --force (so a rerun only does
 what is missing or failed; after changing --method, use --force). --report writes one row per file
-(method, why auto chose it, frames, samples filled, seconds, error): .csv, or .json with each file's
+(method, frames, samples filled, seconds, error, why BVH auto chose the method): .csv, or .json with each file's
 details (e.g. per-gap reports); it also works for one file. Exit code: 0 when every file is clean or up
 to date, 1 when some failed, 2 for a usage error (nothing cleaned).
 

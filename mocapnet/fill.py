@@ -46,11 +46,13 @@ def gap_list(mask: np.ndarray) -> list[tuple[np.ndarray, int, int]]:
     return [(cols, a, b) for cols in mask_groups(mask).values() for a, b in runs(mask[:, cols[0]])]
 
 
-def lerp_fill(channels: np.ndarray, mask: np.ndarray) -> np.ndarray:
+def lerp_fill(channels: np.ndarray, mask: np.ndarray, period: float | None = None) -> np.ndarray:
     """Linear interpolation over the masked samples of ``channels [T, C]`` (mask True = missing).
 
     Missing samples before the first / after the last observed one take the nearest observed value.
-    Columns with no observed sample are left as they are.
+    Columns with no observed sample are left as they are. ``period`` (e.g. 360 for angles in degrees): the
+    observed samples are unwrapped first, so a gap from 170 to -170 is bridged through 180, not through 0; each
+    filled sample lies on the branch of the observed sample before its gap (after it, for a leading gap).
     """
     out = np.array(channels, dtype=np.float64, copy=True)
     t = np.arange(out.shape[0])
@@ -58,8 +60,15 @@ def lerp_fill(channels: np.ndarray, mask: np.ndarray) -> np.ndarray:
         miss = mask[:, cols[0]]
         if miss.all():
             continue
+        seen, gaps = t[~miss], t[miss]
+        before = np.maximum(np.searchsorted(seen, gaps) - 1, 0)  # the observed sample whose branch a gap keeps
         for c in cols:
-            out[miss, c] = np.interp(t[miss], t[~miss], out[~miss, c])
+            values = out[~miss, c]
+            if period is None:
+                out[miss, c] = np.interp(gaps, seen, values)
+                continue
+            unwrapped = np.unwrap(values, period=period)
+            out[miss, c] = np.interp(gaps, seen, unwrapped) + (values - unwrapped)[before]
     return out
 
 

@@ -21,10 +21,26 @@ from mocapnet.evaluate.results import provenance, read_json, write_results
 from mocapnet.threads import pin_threads
 
 
+def positive_int(text: str) -> int:
+    """An argparse type: a whole number >= 1."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be a whole number >= 1, got {text!r}")
+    return value
+
+
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--repeats", type=int, default=5)
-    parser.add_argument("--clips", type=int, default=None, help="score N evenly spaced clips per corpus")
+    parser.add_argument(
+        "--clips",
+        type=positive_int,
+        default=None,
+        help="score N evenly spaced clips per corpus (--split fast: the first N)",
+    )
     parser.add_argument("--corpus", action="append", help="corpora (default bandai2 and bandai1)")
     parser.add_argument("--corruption", action="append", help="corruptions (default: all of PROTOCOL.md)")
     parser.add_argument("--method", action="append", default=[], help="extra noise method, e.g. ebf-free=PATH")
@@ -55,7 +71,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     args = parser.parse_args(argv)
     if args.split != "test" and not (args.skip_bins or args.only):
         parser.error(
-            "the gap-length bins are scored on fold-0 test clips: give --skip-bins with --split val or style:NAME"
+            "the gap-length bins are scored on fold-0 test clips: give --skip-bins with --split val, fast or style:NAME"
         )
     if args.split != "test" and "bandai1" in (args.corpus or ["bandai1"]):
         parser.error(

@@ -4,9 +4,10 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from scipy.ndimage import gaussian_filter1d
 
-from mocapnet.adaptive_smooth import SIGMA_GRID_FRAMES, TRUNCATE, centre_weight, cv_gaussian
+from mocapnet.adaptive_smooth import COLUMN_BLOCK, SIGMA_GRID_FRAMES, TRUNCATE, centre_weight, cv_gaussian
 
 FPS = 30.0
 
@@ -57,11 +58,78 @@ def test_channels_are_smoothed_across_the_wrap_and_returned_on_their_own_branch(
     assert sigma[0] > 1.0
 
 
-def test_short_inputs_come_back_unchanged():
-    x = np.array([[1.0, 2.0], [3.0, 5.0]])
-    y, sigma = cv_gaussian(x)
-    np.testing.assert_array_equal(y, x)
-    assert (sigma == 0).all()
+def test_choice_equals_brute_force_leave_one_out_with_the_explicit_smoother():
+    """For each width, S = the filter applied to the identity (nearest-value edges); the exact leave-one-out error
+    (x - S x) / (1 - diag S) over all frames picks the same width per channel, and the output is S x."""
+    rng = np.random.default_rng(4)
+    n = 60
+    x = np.cumsum(rng.normal(size=(n, 5)), axis=0) + rng.normal(0, [0.0, 0.3, 1.0, 3.0, 0.1], (n, 5))
+    y, chosen = cv_gaussian(x)
+    fits = [s for s in SIGMA_GRID_FRAMES if 2 * int(TRUNCATE * s + 0.5) + 1 <= n]
+    smoothers = {s: gaussian_filter1d(np.eye(n), s, axis=0, mode="nearest", truncate=TRUNCATE) for s in fits}
+    scores = np.array([(((x - S @ x) / (1 - np.diag(S))[:, None]) ** 2).mean(0) for S in smoothers.values()])
+    expected = np.array(fits)[scores.argmin(axis=0)]
+    np.testing.assert_array_equal(chosen, expected)
+    for c, sigma in enumerate(chosen):
+        np.testing.assert_allclose(y[:, c], smoothers[sigma] @ x[:, c], atol=1e-9)
+
+
+def test_column_blocks_give_what_each_column_gets_alone():
+    rng = np.random.default_rng(5)
+    x = np.cumsum(rng.normal(size=(200, 2 * COLUMN_BLOCK + 5)), axis=0) + rng.normal(
+        0, 2.0, (200, 2 * COLUMN_BLOCK + 5)
+    )
+    y, chosen = cv_gaussian(x)
+    for c in range(x.shape[1]):
+        alone, sigma = cv_gaussian(x[:, c : c + 1])
+        np.testing.assert_array_equal(y[:, c : c + 1], alone)
+        assert chosen[c] == sigma[0]
+    assert len(set(chosen)) > 1
+
+
+def test_short_clips_keep_their_samples():
+    """A width is a candidate only where its kernel fits in the clip: 2-4 frames keep the input (within the
+    0.25-frame kernel's 0.07 %), whatever their content."""
+    rng = np.random.default_rng(6)
+    for n in (1, 2, 3, 4):
+        x = rng.normal(0, 30.0, (n, 4))
+        y, sigma = cv_gaussian(x)
+        assert (sigma <= 0.25).all()
+        assert np.abs(y - x).max() <= 1e-3 * max(np.ptp(x), 1.0)
+
+
+def test_bad_arguments_and_unusable_channels():
+    x = np.cumsum(np.random.default_rng(7).normal(size=(50, 3)), axis=0)
+    for grid in ((0.0,), (-1.0,), (0.1,), (float("nan"),)):
+        with pytest.raises(ValueError, match="width"):
+            cv_gaussian(x, grid)
+    with pytest.raises(ValueError, match=r"\[T, C\]"):
+        cv_gaussian(x[:, 0])
+    with pytest.raises(ValueError, match="observed"):
+        cv_gaussian(x, observed=np.ones((50, 2), dtype=bool))
+    x[10, 1] = np.nan
+    observed = np.ones_like(x, dtype=bool)
+    observed[:, 2] = False  # nothing to score on
+    y, sigma = cv_gaussian(x, observed=observed)
+    np.testing.assert_array_equal(y[:, 1:], x[:, 1:])
+    assert sigma[1] == sigma[2] == 0 and sigma[0] > 0
+
+
+def test_gaps_across_the_wrap_are_bridged_the_short_way():
+    from mocapnet.evaluate.bvh_bench import synthetic
+    from mocapnet.methods.registry import build_method
+
+    base = synthetic(4, chain=True)
+    truth = np.repeat(base.channels[:1], 300, axis=0)
+    scored = np.flatnonzero(base.skeleton.scored_mask)
+    truth[:, scored[0]] = 150.0 + np.linspace(0, 60, 300)  # passes 180 at frame 150
+    wrapped = (truth + 180.0) % 360.0 - 180.0
+    mask = np.zeros_like(truth, dtype=bool)
+    mask[140:160, scored[0]] = True
+    motion = type(base)(base.skeleton, np.where(mask, np.nan, wrapped), base.fps, "turn")
+    out = build_method("gaussian-cv").clean(motion, mask)
+    error = (out[:, scored[0]] - truth[:, scored[0]] + 180.0) % 360.0 - 180.0
+    assert np.abs(error).max() < 0.01  # a straight turn, bridged through 180 (not through 0: 170 degrees off)
 
 
 def test_gaussian_cv_method_fills_gaps_and_changes_only_scored_channels():

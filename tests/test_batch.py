@@ -153,6 +153,10 @@ def test_single_file_report_and_usage_errors(tmp_path, capsys):
     assert main(["clean", str(SAMPLE_BVH), "-o", str(tmp_path / "auto.bvh"), "--report", str(report), "--quiet"]) == 0
     (row,) = list(csv.DictReader(report.open()))
     assert row["method"] == "ebf" and row["reason"].startswith("EBF shipped for this skeleton")
+    assert list(row)[-1] == "reason"  # appended: the older columns keep their places
+    as_json = tmp_path / "one.json"
+    assert main(["clean", str(SAMPLE_BVH), "-o", str(tmp_path / "auto2.bvh"), "--report", str(as_json), "--quiet"]) == 0
+    assert json.loads(as_json.read_text())[0]["reason"] == row["reason"]
     folder = tmp_path / "f"
     folder.mkdir()
     assert main(["clean", str(folder), "-o", str(folder), "--workers", "0"]) == 2

@@ -86,14 +86,15 @@ def _gaussian_checked(context: MethodContext, limit: float = CHECK_LIMIT):
 @register(
     "gaussian-cv",
     "angles",
-    help="Gaussian smoothing with each channel's width chosen by leave-one-out cross-validation from 0.25 (the input "
-    "kept) to 16 frames (adaptive_smooth.cv_gaussian; gaps filled linearly first); no training, no noise estimate",
+    help="Gaussian smoothing with each channel's width chosen by leave-one-out cross-validation over the observed "
+    "frames, from 0.25 (the input kept) to 16 frames (adaptive_smooth.cv_gaussian; gaps filled linearly first, "
+    "through the shorter way round the circle); no training, no noise estimate",
 )
 def _gaussian_cv(context: MethodContext):
     def clean(noisy: Motion, mask: np.ndarray) -> np.ndarray:
-        filled = lerp_fill(noisy.channels, mask)
+        filled = lerp_fill(noisy.channels, mask, period=360.0)
         scored = noisy.skeleton.scored_mask
-        filled[:, scored] = cv_gaussian(filled[:, scored])[0]
+        filled[:, scored] = cv_gaussian(filled[:, scored], observed=~mask[:, scored])[0]
         return _scored_only(noisy, filled)
 
     return clean

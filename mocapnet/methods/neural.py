@@ -55,8 +55,9 @@ _EBD_EXTRA = (
     ", rehearse=N (per gap N stand-in gaps where the truth is known; a gap keeps the share of the network's correction"
     " that fitted them), rehearse_mix=0 (all or nothing: interpolate the gaps where the network lost),"
     " rehearse_pool=W (0-1: weight of the share fitted to all the clip's stand-ins together),"
-    " gate_end=S (seconds: gaps this long or longer get the network's whole correction, shorter ones a share"
-    " growing with their length)"
+    " gate_end=S (seconds: where the length gate ends — shorter gaps keep a share of the network's correction"
+    " growing with their length; with the rehearsal, gaps at least this long get the fitted share, shorter ones"
+    " its all-or-nothing verdict)"
 )
 _HELP_PAIR = "{what}; checkpoints: EBD,EBF, default: the shipped ones for the skeleton; option mode=sequence|windowed"
 _BLEND_OPTIONS = ("rehearse", "rehearse_margin", "rehearse_min_s", "rehearse_mix", "rehearse_pool", "gate_end")

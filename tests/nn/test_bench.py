@@ -129,3 +129,6 @@ def test_fast_split_is_fold_1_with_the_most_fast_movement_first(monkeypatch):
     with pytest.raises(SystemExit):
         module.parse_args(["--split", "fast", "--corpus", "bandai1", "--skip-bins"])
     assert module.parse_args(["--split", "fast", "--corpus", "bandai2", "--skip-bins"]).split == "fast"
+    for bad in ("0", "-3", "2.5"):
+        with pytest.raises(SystemExit):
+            module.parse_args(["--split", "fast", "--corpus", "bandai2", "--skip-bins", "--clips", bad])
