@@ -127,6 +127,15 @@ def clean_bvh_file(src: Path, out: Path, options: CleanOptions) -> CleanResult:
     noisy = motion.channels.copy()
     noisy[mask] = np.nan
     cleaned = built.clean(motion.with_channels(noisy), mask)
+    unfilled = mask & ~np.isfinite(cleaned)
+    if unfilled.any():  # e.g. a channel masked in every frame: nothing to interpolate from
+        t, c = np.argwhere(unfilled)[0]
+        label = motion.skeleton.channel_labels[c]
+        whole = " (masked in every frame)" if mask[:, c].all() else ""
+        raise ValueError(
+            f"{options.mask}: {method} cannot fill {label}{whole}: {int(unfilled[:, c].sum())} samples left missing "
+            f"from frame {t + 1}; unmask some of its frames or use a method that fills it (ebd)"
+        )
     write_bvh(out, motion.with_channels(cleaned), inputs=(src,))
     n_missing = int(mask.sum())
     return CleanResult(

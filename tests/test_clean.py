@@ -179,3 +179,18 @@ def test_auto_plan_takes_an_index_entry_without_a_frame_rate(monkeypatch, short_
     monkeypatch.setattr(auto_angles, "shipped_methods", lambda skeleton: entries)
     assert auto_angles.auto_plan(short_motion.skeleton, 30.0, True)[0] == "ebd+ebf"
     assert auto_angles.auto_plan(short_motion.skeleton, 30.0, False)[0] == "ebf"
+
+
+def test_a_channel_masked_in_every_frame_is_named_not_written(tmp_path, cmu):
+    """Interpolation has nothing to go on in a channel masked in every frame: the error names the mask and the
+    channel, and nothing is written."""
+    clip = cmu.with_channels(cmu.channels[:120])
+    src = tmp_path / "walk.bvh"
+    src.write_text(format_bvh(clip))
+    mask = np.zeros(clip.channels.shape, dtype=bool)
+    mask[:, np.flatnonzero(clip.skeleton.scored_mask)[7]] = True
+    np.save(tmp_path / "mask.npy", mask)
+    label = clip.skeleton.channel_labels[np.flatnonzero(clip.skeleton.scored_mask)[7]]
+    with pytest.raises(ValueError, match=rf"mask.npy: lerp cannot fill {label} \(masked in every frame\): 120 samples"):
+        clean_file(src, tmp_path / "out.bvh", CleanOptions(method="lerp", mask=str(tmp_path / "mask.npy")))
+    assert not (tmp_path / "out.bvh").exists()
