@@ -15,6 +15,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.ndimage import gaussian_filter1d
 
+from mocapnet.fill import runs
+
 #: Candidate widths (std, frames at the clip's own rate): 0.25 (the input kept, within 0.07 %: its neighbours weigh
 #: 3e-4 each) and 0.5 to 16 frames in steps of √2. As the width shrinks to 0 the leave-one-out prediction becomes the
 #: mean of the two neighbours, so "keep the input" is scored by that prediction's error (noise variance 1.5σ² against
@@ -51,8 +53,10 @@ def cv_gaussian(
     channels: np.ndarray,
     grid_frames: tuple[float, ...] = SIGMA_GRID_FRAMES,
     observed: np.ndarray | None = None,
+    period: float | None = 360.0,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """``channels [T, C]`` (degrees, any branch; unwrapped along time here) smoothed per channel by the Gaussian
+    """``channels [T, C]`` (degrees, any branch, unwrapped along time here; ``period=None``: positions or any
+    other unit, not unwrapped) smoothed per channel by the Gaussian
     of ``grid_frames`` (std, frames, each ≥ 0.25) with the smallest leave-one-out error → ``(smoothed [T, C]
     float64 on each sample's own branch, chosen std [C] in frames)``. ``observed [T, C]`` (bool): the frames whose
     residuals are scored (default all; e.g. not the samples a gap filler made up). Edges are padded with the
@@ -73,7 +77,7 @@ def cv_gaussian(
     for c in range(0, x.shape[1], COLUMN_BLOCK):
         cols = slice(c, c + COLUMN_BLOCK)
         raw = x[:, cols]
-        unwrapped = np.unwrap(raw, period=360.0, axis=0)
+        unwrapped = raw if period is None else np.unwrap(raw, period=period, axis=0)
         weight = np.ones(raw.shape) if observed is None else np.asarray(observed[:, cols], dtype=np.float64)
         counted = weight.sum(axis=0)
         best = np.full(raw.shape[1], np.inf)
@@ -86,4 +90,22 @@ def cv_gaussian(
                 best[better] = score[better]
                 chosen[c : c + raw.shape[1]][better] = sigma
                 out[:, cols][:, better] = smooth[:, better] + (raw - unwrapped)[:, better]
+    return out, chosen
+
+
+def cv_gaussian_runs(
+    points: np.ndarray, visible: np.ndarray, grid_frames: tuple[float, ...] = SIGMA_GRID_FRAMES
+) -> tuple[np.ndarray, np.ndarray]:
+    """Marker trajectories ``points [T, M, 3]`` (any length unit; NaN where missing) smoothed along each run of
+    ``visible [T, M]`` frames of each marker on its own, by ``cv_gaussian`` (each axis its own width; gaps are
+    not bridged, so nothing made up enters a smoothed sample) → ``(smoothed [T, M, 3], chosen std [T, M, 3] in
+    frames, 0 where not visible or kept)``. A run too short for any width but the narrowest keeps its samples."""
+    pts = np.asarray(points, dtype=np.float64)
+    vis = np.asarray(visible, dtype=bool)
+    if pts.ndim != 3 or pts.shape[2] != 3 or vis.shape != pts.shape[:2]:
+        raise ValueError(f"cv_gaussian_runs: points must be [T, M, 3] and visible [T, M], got {pts.shape}, {vis.shape}")
+    out, chosen = pts.copy(), np.zeros(pts.shape)
+    for m in range(pts.shape[1]):
+        for a, b in runs(vis[:, m]):
+            out[a:b, m], chosen[a:b, m] = cv_gaussian(pts[a:b, m], grid_frames, period=None)
     return out, chosen

@@ -147,12 +147,15 @@ def clean_bvh_file(src: Path, out: Path, options: CleanOptions) -> CleanResult:
 
 
 def clean_c3d_file(src: Path, out: Path, options: CleanOptions) -> CleanResult:
-    """Fill the gaps of a C3D file's markers and write the result.
+    """Fill the gaps of a C3D file's markers (or, with a smoother, denoise its measured samples) and write the
+    result.
 
     The default method ``auto`` (``mocapnet.methods.autofill``) chooses a filler per gap, checks each fill
     and leaves gaps it cannot fill plausibly missing; another ``--method`` fills every gap it can. Either
     way ``details["gaps"]`` holds one JSON-able report per gap (marker, frames, method, step ratio, status)
-    and ``options.plot`` names a PNG of the filled markers to write.
+    and ``options.plot`` names a PNG of the filled markers to write. A smoother (``gaussian-cv``: its clean
+    function has ``moves_measured``) moves measured samples instead; they are written with their residual and
+    camera words kept (``write_c3d(moved=...)``), its gaps stay missing, ``details["smoothed_samples"]`` counts them.
     """
     from mocapnet.io import read_c3d, write_c3d
     from mocapnet.methods.autofill import auto_fill, describe_fill, plot_fills
@@ -164,6 +167,7 @@ def clean_c3d_file(src: Path, out: Path, options: CleanOptions) -> CleanResult:
     name, method_options = parse_method(method)
     usable = np.flatnonzero(markers.visible.any(axis=0))
     n_missing = int((~markers.visible[:, usable]).sum())
+    smoother = False
     if name == "auto":
         database = method_options.pop("database", options.database)
         try:
@@ -175,26 +179,37 @@ def clean_c3d_file(src: Path, out: Path, options: CleanOptions) -> CleanResult:
         if options.database and name == "knn" and "database" not in method_options:
             method += (":" if ":" not in method else ",") + f"database={options.database}"
         built = build_method(method, MethodContext(corruption="file gaps"), space="points")
+        smoother = bool(getattr(built.clean, "moves_measured", False))
         points = markers.points.copy()
-        if n_missing:
+        if n_missing or smoother:
             points[:, usable] = built.clean(markers.select(usable))
         gaps = describe_fill(markers, points, name)
     filled = np.isfinite(points).all(axis=2) & ~markers.visible
+    moved = None
+    if smoother:
+        moved = markers.visible & np.isfinite(points).all(axis=2) & (points != markers.points).any(axis=2)
     result = Markers(points, markers.visible | filled, markers.labels, markers.fps, markers.name)
-    write_c3d(out, result, inputs=(src,), source=src, filled=filled)
+    write_c3d(out, result, inputs=(src,), source=src, filled=filled, moved=moved)
     if options.plot:
         plot_fills(options.plot, markers, points, gaps)
     empty = markers.n_markers - usable.size
     n_filled = int(filled.sum())
     left = sum(bool(g["unfilled_spans"]) for g in gaps)
+    done = (
+        f"smoothed {int(moved.sum())} measured samples of {usable.size} markers (residuals kept; "
+        f"{n_missing} missing samples left missing)"
+        if moved is not None
+        else f"filled {n_filled} of {n_missing} missing samples in {usable.size} markers"
+    )
     return CleanResult(
         src, out, method, markers.n_frames, n_filled,
-        f"{src} -> {out}: {method} filled {n_filled} of {n_missing} missing samples in {usable.size} markers"
+        f"{src} -> {out}: {method} {done}"
         + (f" (read with {reader})" if (reader := getattr(markers, "reader", "ezc3d")) != "ezc3d" else "")
-        + (f"; {left} gaps wholly or partly left missing (no plausible fill)" if left else "")
+        + (f"; {left} gaps wholly or partly left missing (no plausible fill)" if left and moved is None else "")
         + (f"; knn database: {built.clean.database}" if name == "knn" else "")
         + (f"; {empty} markers with no data at all left empty" if empty else ""),
-        {"gaps": gaps, "file_first_frame": markers.first_frame},
+        {"gaps": gaps, "file_first_frame": markers.first_frame}
+        | ({"smoothed_samples": int(moved.sum())} if moved is not None else {}),
     )  # fmt: skip
 
 

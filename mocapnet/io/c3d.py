@@ -261,7 +261,9 @@ def _match_columns(content: C3DContent, markers: Markers) -> np.ndarray:
     raise MocapFileError(f"{content.path}: has no point labelled {missing!r} to write the filled samples into")
 
 
-def _write_edited(path: Path, markers: Markers, inputs: tuple, source: Path, filled: np.ndarray | None) -> None:
+def _write_edited(
+    path: Path, markers: Markers, inputs: tuple, source: Path, filled: np.ndarray | None, moved: np.ndarray | None
+) -> None:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", TruncatedC3DWarning)
         content = load_c3d(source, allow_truncated=True)
@@ -284,6 +286,16 @@ def _write_edited(path: Path, markers: Markers, inputs: tuple, source: Path, fil
         raise ValueError(
             f"{markers.name or 'markers'}: filled sample at frame {t + 1}, {markers.labels[m]} has no value"
         )
+    moved = np.zeros_like(filled) if moved is None else np.asarray(moved)
+    if moved.dtype != bool or moved.shape != filled.shape:
+        raise ValueError(f"moved must be a bool [T, M] = {filled.shape} array, got {moved.dtype} {moved.shape}")
+    wrong = moved & (filled | ~content.visible[:, index] | ~markers.visible)
+    if wrong.any():
+        t, m = np.argwhere(wrong)[0]
+        raise ValueError(
+            f"{markers.name or 'markers'}: moved sample at frame {t + 1}, {markers.labels[m]} is not a measured "
+            "sample with a value (or is also filled)"
+        )
     raw = source.read_bytes()
     layout = content.layout
     stored, _ = decode_points(layout, raw)
@@ -296,21 +308,32 @@ def _write_edited(path: Path, markers: Markers, inputs: tuple, source: Path, fil
             C3DRebuiltWarning,
             stacklevel=3,
         )
-        _write_rebuilt(path, content, values, filled, index, (*inputs, source))
+        _write_rebuilt(path, content, values, filled, index, (*inputs, source), moved)
         return
-    edited = cut_to_present(layout, patch_points(layout, raw, values, filled, index, markers.labels))
+    edited = patch_points(layout, raw, values, filled, index, markers.labels)
+    if moved.any():
+        edited = patch_points(layout, edited, values, moved, index, markers.labels, computed=False)
+    edited = cut_to_present(layout, edited)
     with atomic_output(path, (*inputs, source)) as tmp:
         tmp.write_bytes(edited)
 
 
 def _write_rebuilt(
-    path: Path, content: C3DContent, values: np.ndarray, filled: np.ndarray, index: np.ndarray, inputs: tuple
+    path: Path,
+    content: C3DContent,
+    values: np.ndarray,
+    filled: np.ndarray,
+    index: np.ndarray,
+    inputs: tuple,
+    moved: np.ndarray,
 ) -> None:
     """A new C3D file holding every point of ``content`` (``filled`` samples replaced by ``values [T, M, 3]``
-    in the file's units, residual 0), its analog channels, labels and rates."""
+    in the file's units, residual 0; ``moved`` samples replaced, residual kept), its analog channels, labels
+    and rates."""
     xyz, residuals = content.xyz.copy(), content.residuals.copy()
-    t, m = np.nonzero(filled)
+    t, m = np.nonzero(filled | moved)
     xyz[t, index[m]] = values[t, m]
+    t, m = np.nonzero(filled)
     residuals[t, index[m]] = 0.0
     invalid = residuals < 0
     xyz[invalid] = np.nan
@@ -371,6 +394,7 @@ def write_c3d(
     *,
     source: str | os.PathLike | None = None,
     filled: np.ndarray | None = None,
+    moved: np.ndarray | None = None,
 ) -> None:
     """Write markers to a C3D file, atomically (a hidden ``.NAME.*.partial`` file moved into place).
 
@@ -392,14 +416,17 @@ def write_c3d(
         a new C3D file with every point, the analog channels, labels and rates (other groups are lost).
     filled : bool ``[T, M]``, the samples to write; default: visible in ``markers`` but missing in
         ``source``. Each must have a value in ``markers``.
+    moved : bool ``[T, M]`` (with ``source``), measured samples whose positions are rewritten from ``markers``
+        while their residual word (residual, cameras) stays as it was — a smoother's output. Each must be
+        measured in ``source`` and not ``filled``.
 
     Without ``source``: a new file with the markers only (positions in mm, missing samples NaN, residual -1).
     """
     check_output_path(path, (*inputs, *(() if source is None else (source,))))
     path = Path(path)
     if source is None:
-        if filled is not None:
-            raise ValueError("filled= needs source=: a new C3D file has no measured samples to keep")
+        if filled is not None or moved is not None:
+            raise ValueError("filled= and moved= need source=: a new C3D file has no measured samples to keep")
         _write_new(path, markers, inputs)
     else:
-        _write_edited(path, markers, tuple(inputs), Path(source), filled)
+        _write_edited(path, markers, tuple(inputs), Path(source), filled, moved)

@@ -295,8 +295,10 @@ def patch_points(
     where: np.ndarray,
     point_index: np.ndarray,
     labels: Sequence[str] = (),
+    computed: bool = True,
 ) -> bytearray:
-    """A copy of the file's bytes with the samples ``where`` replaced by ``values``, residual 0.
+    """A copy of the file's bytes with the samples ``where`` replaced by ``values``, residual 0 (``computed``;
+    else the residual word is left as it is: a measured sample moved, e.g. by smoothing).
 
     Parameters
     ----------
@@ -318,8 +320,9 @@ def patch_points(
     if not np.isfinite(xyz).all():
         raise ValueError(f"{layout.path}: a sample to write is not finite")
     words = np.concatenate([xyz, np.zeros((xyz.shape[0], 1))], axis=1)  # [N, 4]
+    n_words = 4 if computed else 3
     if layout.is_float:
-        encoded = _encode_float32(words.reshape(-1), layout.processor).reshape(-1, 4, 4)
+        encoded = _encode_float32(words.reshape(-1), layout.processor).reshape(-1, 4, 4)[:, :n_words]
     else:
         counts = np.rint(words / np.array([layout.scale] * 3 + [1.0]))
         bad = np.flatnonzero((np.abs(counts) > 32767).any(axis=1))
@@ -327,11 +330,11 @@ def patch_points(
             k = bad[0]
             name = labels[cols[k]] if len(labels) > cols[k] else f"point {points[k] + 1}"
             raise MocapFileError(
-                f"{layout.path}: filled value {xyz[k].round(1).tolist()} of {name} at frame {frames[k] + 1} does "
+                f"{layout.path}: value {xyz[k].round(1).tolist()} of {name} at frame {frames[k] + 1} does "
                 f"not fit this integer C3D file (range ±{32767 * layout.scale:.1f} in file units)"
             )
-        encoded = counts.astype(_int16(layout.processor)).view(np.uint8).reshape(-1, 4, 2)
-    view[frames[:, None], 4 * points[:, None] + np.arange(4)] = encoded
+        encoded = counts.astype(_int16(layout.processor)).view(np.uint8).reshape(-1, 4, 2)[:, :n_words]
+    view[frames[:, None], 4 * points[:, None] + np.arange(n_words)] = encoded
     return out
 
 

@@ -11,7 +11,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from mocapnet.adaptive_smooth import cv_gaussian
+from mocapnet.adaptive_smooth import cv_gaussian, cv_gaussian_runs
 from mocapnet.corrupt import corrupt_motion, seed_for
 from mocapnet.fill import gaussian_smooth, lerp_fill, mask_groups, spline_fill
 from mocapnet.methods.registry import MethodContext, register
@@ -211,4 +211,21 @@ def _point_fill(fill):
 
 
 register("lerp", "points", help="linear interpolation of each coordinate over gaps")(_point_fill(lerp_fill))
+
+
+@register(
+    "gaussian-cv",
+    "points",
+    help="denoising: each marker coordinate smoothed along each run of visible frames by the Gaussian whose width "
+    "leave-one-out cross-validation picks (0.25 = kept, to 16 frames; adaptive_smooth.cv_gaussian_runs); gaps stay "
+    "missing; mocapnet clean writes the new positions and keeps each sample's residual and cameras",
+)
+def _gaussian_cv_points(context: MethodContext):
+    def clean(noisy: Markers) -> np.ndarray:
+        return cv_gaussian_runs(noisy.points, noisy.visible)[0]
+
+    clean.moves_measured = True  # type: ignore[attr-defined]  (a smoother: clean_c3d_file writes measured samples)
+    return clean
+
+
 register("spline", "points", help="cubic spline of each coordinate over gaps")(_point_fill(spline_fill))

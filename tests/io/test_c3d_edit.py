@@ -235,3 +235,42 @@ def test_unknown_layout_gives_a_new_file_with_points_and_analogs(shared, tmp_pat
     unique = [m for m, lab in enumerate(markers.labels) if after.labels.count(lab) == 1]
     cols = [after.labels.index(markers.labels[m]) for m in unique]
     assert (after.residuals[:, cols][filled[:, unique]] == 0).all()
+
+
+@pytest.mark.parametrize("rel", ["btkdata/Gait.c3d", "ezc3d/Vicon.c3d", "btkdata/sgi_real.c3d"])
+def test_moved_samples_get_new_positions_and_keep_their_residual_words(shared, tmp_path, rel):
+    """``moved=``: measured samples rewritten (a smoother's output) keep residual and cameras; only their X, Y, Z
+    words change; a moved sample that is not measured, or also filled, is refused and nothing is written."""
+    src = shared / "c3d" / rel
+    markers = read_c3d(src)
+    moved = markers.visible.copy()
+    moved[::2] = False  # every other frame
+    # 3.7 mm toward 0 (off an integer file's grid, never out of its range)
+    shifted = markers.points - np.where(moved[..., None], 0.37 * np.sign(markers.points), 0.0)
+    new = Markers(shifted, markers.visible, markers.labels, markers.fps)
+    out = tmp_path / "moved.c3d"
+    write_c3d(out, new, inputs=(src,), source=src, filled=np.zeros_like(moved), moved=moved)
+    before, after = src.read_bytes(), out.read_bytes()
+    changed = set(np.flatnonzero(np.frombuffer(before, np.uint8) != np.frombuffer(after, np.uint8)).tolist())
+    layout = read_layout(src)
+    residual_bytes = {
+        b
+        for b in sample_bytes(src, markers, moved)
+        if (b - layout.data_offset) % (4 * layout.word_size) >= 3 * layout.word_size
+    }
+    assert changed and changed <= sample_bytes(src, markers, moved) and not changed & residual_bytes
+    a, b = load_c3d(src), load_c3d(out)
+    np.testing.assert_array_equal(b.residuals, a.residuals)
+    back = read_c3d(out)
+    tolerance = layout.scale / 2 * 0.1 if not layout.is_float else 1e-4
+    assert np.abs(back.points[moved] - shifted[moved]).max() <= tolerance * 1.0001
+    np.testing.assert_array_equal(back.points[markers.visible & ~moved], markers.points[markers.visible & ~moved])
+    gap = np.argwhere(~markers.visible)
+    if len(gap):
+        wrong = moved.copy()
+        wrong[tuple(gap[0])] = True
+        with pytest.raises(ValueError, match="moved sample at frame"):
+            write_c3d(tmp_path / "bad.c3d", new, source=src, filled=np.zeros_like(moved), moved=wrong)
+    with pytest.raises(ValueError, match="moved sample"):
+        write_c3d(tmp_path / "bad.c3d", new, source=src, filled=moved, moved=moved)
+    assert not (tmp_path / "bad.c3d").exists()
