@@ -35,6 +35,7 @@ examples:
   mocapnet clean take.c3d -o take_filled.c3d --method pca          # one filler for every gap, unchecked
   mocapnet clean take.c3d -o take_filled.c3d --method knn --database clean_takes/
   mocapnet clean take.c3d -o take_live.c3d --method extrapolate+cm
+  mocapnet clean take.c3d -o take_smooth.c3d --method gaussian-cv  # denoise the measured samples, gaps left as they are
   mocapnet clean walk.bvh -o walk_clean.bvh                       # shipped EBF for the skeleton, else gaussian-cv
   mocapnet clean walk.bvh -o walk_clean.bvh --method gaussian-58ms
   mocapnet clean walk.bvh -o walk_filled.bvh --mask missing.npy   # bool [T, C] or [T, J], True = missing
@@ -43,8 +44,9 @@ examples:
 
 The output is written only when cleaning succeeded, never over the input, and only with the input's format
 (.bvh/.bvh.gz or .c3d, any case). C3D output is the input file with only the filled samples changed (residual
-0 = computed): every other point, analog channel, event, parameter and the header stay as they were. Gaps
-that no filler fills plausibly stay missing and are listed in the report.
+0 = computed) — or, with the denoiser gaussian-cv, only the measured samples' positions (residual and cameras
+kept): every other point, analog channel, event, parameter and the header stay as they were. Gaps that no
+filler fills plausibly stay missing and are listed in the report.
 
 A folder: every .bvh, .bvh.gz and .c3d under it (recursing) is cleaned to the same relative path under the
 output folder, each exactly as the one-file clean would do it, in parallel on Dask worker processes (one per
@@ -257,7 +259,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--method",
         help="method (default auto. BVH: the EBF shipped for the skeleton, ebd+ebf with --mask, on any other "
         "skeleton or frame rate gaussian-cv; C3D: per gap rigid-body, pca, knn with --database, spline or lerp, each "
-        "fill checked, implausible gaps left missing)",
+        "fill checked, implausible gaps left missing; gaussian-cv denoises instead)",
     )
     cl.add_argument("--model", help="checkpoint(s) for a neural method, comma-separated for ebd+ebf")
     cl.add_argument("--mask", help="BVH: .npy bool mask of missing samples, [T, C] or [T, J]")
