@@ -17,11 +17,13 @@ from scipy.ndimage import gaussian_filter1d
 
 from mocapnet.fill import runs
 
-#: Candidate widths (std, frames at the clip's own rate): 0.25 (the input kept, within 0.07 %: its neighbours weigh
-#: 3e-4 each) and 0.5 to 16 frames in steps of √2. As the width shrinks to 0 the leave-one-out prediction becomes the
+#: Candidate widths (std, frames at the clip's own rate): ``KEEP`` (0.25: scored as that narrow Gaussian, whose
+#: neighbours weigh 3e-4 each; when it wins the channel is returned exactly as it came) and 0.5 to 16 frames in
+#: steps of √2. As the width shrinks to 0 the leave-one-out prediction becomes the
 #: mean of the two neighbours, so "keep the input" is scored by that prediction's error (noise variance 1.5σ² against
 #: the 2σ² of keeping a noisy sample): the rule leans toward keeping the input.
-SIGMA_GRID_FRAMES = (0.25, *(float(0.5 * np.sqrt(2.0) ** k) for k in range(11)))
+KEEP = 0.25
+SIGMA_GRID_FRAMES = (KEEP, *(float(0.5 * np.sqrt(2.0) ** k) for k in range(11)))
 #: Columns handled at a time (the temporaries are ``[T, COLUMN_BLOCK]``: O(T) memory).
 COLUMN_BLOCK = 16
 #: ``scipy.ndimage.gaussian_filter1d``'s default kernel radius, in standard deviations.
@@ -61,7 +63,8 @@ def cv_gaussian(
     float64 on each sample's own branch, chosen std [C] in frames)``. ``observed [T, C]`` (bool): the frames whose
     residuals are scored (default all; e.g. not the samples a gap filler made up). Edges are padded with the
     nearest value (as ``fill.gaussian_smooth``). Widths whose kernel does not fit in the clip are skipped; a
-    channel no width fits, one with a non-finite value or one without a scored frame comes back unchanged (std 0).
+    channel no width fits, one with a non-finite value or one without a scored frame comes back unchanged (std 0);
+    a channel where ``KEEP`` wins comes back exactly as it came (std ``KEEP``).
     """
     x = np.asarray(channels, dtype=np.float64)
     if x.ndim != 2:
@@ -90,6 +93,8 @@ def cv_gaussian(
                 best[better] = score[better]
                 chosen[c : c + raw.shape[1]][better] = sigma
                 out[:, cols][:, better] = smooth[:, better] + (raw - unwrapped)[:, better]
+        kept = chosen[c : c + raw.shape[1]] == KEEP
+        out[:, cols][:, kept] = raw[:, kept]
     return out, chosen
 
 
@@ -99,7 +104,8 @@ def cv_gaussian_runs(
     """Marker trajectories ``points [T, M, 3]`` (any length unit; NaN where missing) smoothed along each run of
     ``visible [T, M]`` frames of each marker on its own, by ``cv_gaussian`` (each axis its own width; gaps are
     not bridged, so nothing made up enters a smoothed sample) → ``(smoothed [T, M, 3], chosen std [T, M, 3] in
-    frames, 0 where not visible or kept)``. A run too short for any width but the narrowest keeps its samples."""
+    frames: 0 where not visible or where no width fits the run, ``KEEP`` where the run's axis is returned as it
+    came)``. Samples of a kept axis are the input exactly."""
     pts = np.asarray(points, dtype=np.float64)
     vis = np.asarray(visible, dtype=bool)
     if pts.ndim != 3 or pts.shape[2] != 3 or vis.shape != pts.shape[:2]:

@@ -134,7 +134,7 @@ def clean_bvh_file(src: Path, out: Path, options: CleanOptions) -> CleanResult:
         whole = " (masked in every frame)" if mask[:, c].all() else ""
         raise ValueError(
             f"{options.mask}: {method} cannot fill {label}{whole}: {int(unfilled[:, c].sum())} samples left missing "
-            f"from frame {t + 1}; unmask some of its frames or use a method that fills it (ebd)"
+            f"from frame {t + 1}; unmask some of its frames, or use ebd where one is shipped for the skeleton"
         )
     write_bvh(out, motion.with_channels(cleaned), inputs=(src,))
     n_missing = int(mask.sum())
@@ -155,7 +155,8 @@ def clean_c3d_file(src: Path, out: Path, options: CleanOptions) -> CleanResult:
     way ``details["gaps"]`` holds one JSON-able report per gap (marker, frames, method, step ratio, status)
     and ``options.plot`` names a PNG of the filled markers to write. A smoother (``gaussian-cv``: its clean
     function has ``moves_measured``) moves measured samples instead; they are written with their residual and
-    camera words kept (``write_c3d(moved=...)``), its gaps stay missing, ``details["smoothed_samples"]`` counts them.
+    camera words kept (``write_c3d(moved=...)``), its gaps stay missing, ``details["smoothed_samples"]`` counts
+    the samples whose stored position changed.
     """
     from mocapnet.io import read_c3d, write_c3d
     from mocapnet.methods.autofill import auto_fill, describe_fill, plot_fills
@@ -180,16 +181,21 @@ def clean_c3d_file(src: Path, out: Path, options: CleanOptions) -> CleanResult:
             method += (":" if ":" not in method else ",") + f"database={options.database}"
         built = build_method(method, MethodContext(corruption="file gaps"), space="points")
         smoother = bool(getattr(built.clean, "moves_measured", False))
+        if smoother and options.plot:
+            raise ValueError(f"--plot draws the filled gaps; {name} fills none (it moves measured samples)")
         points = markers.points.copy()
         if n_missing or smoother:
             points[:, usable] = built.clean(markers.select(usable))
-        gaps = describe_fill(markers, points, name)
+        gaps = [] if smoother else describe_fill(markers, points, name)
     filled = np.isfinite(points).all(axis=2) & ~markers.visible
     moved = None
     if smoother:
         moved = markers.visible & np.isfinite(points).all(axis=2) & (points != markers.points).any(axis=2)
     result = Markers(points, markers.visible | filled, markers.labels, markers.fps, markers.name)
     write_c3d(out, result, inputs=(src,), source=src, filled=filled, moved=moved)
+    if moved is not None:  # count what the file now holds (an integer file rounds small moves away)
+        back = read_c3d(out, allow_truncated=options.allow_truncated)
+        moved = moved & (back.points != markers.points).any(axis=2)
     if options.plot:
         plot_fills(options.plot, markers, points, gaps)
     empty = markers.n_markers - usable.size

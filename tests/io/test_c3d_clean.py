@@ -91,3 +91,30 @@ def test_gaussian_cv_denoises_measured_samples_and_keeps_residuals_and_gaps(tmp_
     noise = np.sqrt(((before.points - truth.points)[seen] ** 2).mean())
     left = np.sqrt(((after.points - truth.points)[seen] ** 2).mean())
     assert left < 0.9 * noise  # 2 mm on a 50 fps tennis serve: 0.172 cm left of 0.200 (fixed 0.7-frame Gaussian: 0.158)
+
+
+@pytest.mark.parametrize("rel", ["btkdata/Gait.c3d", "btkdata/DEC_INT.C3D", "ezc3d/Vicon.c3d"])
+def test_gaussian_cv_on_lab_files_keeps_residual_words_and_counts_what_changed(shared, tmp_path, rel):
+    """On integer (DEC) and float lab files: only X/Y/Z bytes of measured samples change, every residual word
+    (residual and cameras) stays, and the reported count is the samples whose stored position changed."""
+    from mocapnet.clean import CleanOptions, clean_file
+
+    src = shared / "c3d" / rel
+    out = tmp_path / "smooth.c3d"
+    result = clean_file(src, out, CleanOptions(method="gaussian-cv"))
+    a, b = load_c3d(src), load_c3d(out)
+    np.testing.assert_array_equal(b.residuals, a.residuals)
+    layout = read_layout(src)
+    raw_a = np.frombuffer(src.read_bytes(), np.uint8)
+    raw_b = np.frombuffer(out.read_bytes(), np.uint8)
+    changed = np.flatnonzero(raw_a != raw_b)
+    word = (changed - layout.data_offset) // layout.word_size
+    assert (changed >= layout.data_offset).all() and (word % 4 != 3).all()  # point words only, never the 4th
+    before, after = read_c3d(src), read_c3d(out)
+    moved = before.visible & (after.points != before.points).any(axis=2)
+    assert result.details["smoothed_samples"] == int(moved.sum()) and result.samples_filled == 0
+    np.testing.assert_array_equal(after.visible, before.visible)
+    assert f"smoothed {int(moved.sum())} measured samples" in result.message
+    with pytest.raises(ValueError, match="--plot draws the filled gaps"):
+        clean_file(src, tmp_path / "p.c3d", CleanOptions(method="gaussian-cv", plot=str(tmp_path / "p.png")))
+    assert not (tmp_path / "p.c3d").exists()
