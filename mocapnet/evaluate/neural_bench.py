@@ -82,12 +82,13 @@ def shipped_variants(motion: Motion) -> list[str]:
 
 
 def neural_methods(corruption: str, motion: Motion, extra: Sequence[str], shipped: bool = True) -> list[str]:
-    """What to score beside the references: EBF variants (``shipped``) and ``extra`` on noise, EBD on gaps,
-    EBD+EBF on noise+gaps."""
-    if corruption == "noise+gaps":
-        return ["ebd+ebf"]
+    """What to score beside the references: EBF variants (``shipped``) and ``extra`` on noise; the shipped EBD on
+    gaps and EBD+EBF on noise+gaps, each with the ``extra`` methods of that family (``ebd=…`` / ``ebd+ebf=…``:
+    other checkpoints of it; the denoisers of ``extra`` have nothing to do there)."""
     if has_gaps(corruption):
-        return ["ebd"]
+        family = "ebd+ebf" if corruption == "noise+gaps" else "ebd"
+        mine = [m for m in extra if m.split(":")[0].split("=")[0] == family]
+        return [family, *(m for m in mine if m != family)]
     return (shipped_variants(motion) if shipped else []) + list(extra)
 
 

@@ -132,3 +132,12 @@ def test_fast_split_is_fold_1_with_the_most_fast_movement_first(monkeypatch):
     for bad in ("0", "-3", "2.5"):
         with pytest.raises(SystemExit):
             module.parse_args(["--split", "fast", "--corpus", "bandai2", "--skip-bins", "--clips", bad])
+
+
+def test_gap_corruptions_score_extra_checkpoints_of_their_family():
+    """noise+gaps scores the shipped ebd+ebf and every extra ``ebd+ebf=…`` (a candidate pair was silently dropped
+    before); gaps the shipped ebd and extra ``ebd=…``; the denoisers given as extras only on noise."""
+    extra = ["ebf-free=a.ckpt:limit=2.5", "ebd+ebf=k.ckpt,r.ckpt", "ebd=k.ckpt:rehearse=4", "ebd+ebf"]
+    assert bench.neural_methods("noise+gaps", None, extra) == ["ebd+ebf", "ebd+ebf=k.ckpt,r.ckpt"]
+    assert bench.neural_methods("gaps", None, extra) == ["ebd", "ebd=k.ckpt:rehearse=4"]
+    assert bench.neural_methods("angular-0.5", None, extra, shipped=False) == extra
