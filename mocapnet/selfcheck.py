@@ -27,17 +27,20 @@ def noise_level(x: np.ndarray) -> np.ndarray:
     return out
 
 
-def limit_change(noisy: np.ndarray, cleaned: np.ndarray, factor: float) -> np.ndarray:
+def limit_change(noisy: np.ndarray, cleaned: np.ndarray, factor: float, anchor: np.ndarray | None = None) -> np.ndarray:
     """The self-check: ``cleaned [T, C]`` moved back toward ``noisy [T, C]`` (degrees) on each channel whose RMS
     change exceeds ``factor`` × its ``noise_level``, so that it changes by exactly that much. A denoiser has no
     business changing a channel by much more than the noise it shows (on nearly clean input a learned filter
-    otherwise smooths away real motion). Returns a new array; works ``COLUMN_BLOCK`` columns at a time."""
+    otherwise smooths away real motion). ``anchor [T, C]``: measure and cap the distance from it instead (e.g. a
+    training-free smoother's output); the cap is still from ``noisy``'s noise. Returns a new array; works
+    ``COLUMN_BLOCK`` columns at a time."""
     cap = factor * noise_level(noisy)
+    base = noisy if anchor is None else anchor
     out = np.empty(np.broadcast_shapes(noisy.shape, cleaned.shape))
     for c in range(0, out.shape[1], COLUMN_BLOCK):
         cols = slice(c, c + COLUMN_BLOCK)
-        change = wrap_deg(cleaned[:, cols] - noisy[:, cols])
+        change = wrap_deg(cleaned[:, cols] - base[:, cols])
         rms = np.sqrt(np.mean(change**2, axis=0))
         change *= np.where(rms > cap[cols], cap[cols] / np.maximum(rms, 1e-12), 1.0)
-        out[:, cols] = noisy[:, cols] + change
+        out[:, cols] = base[:, cols] + change
     return out

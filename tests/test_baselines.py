@@ -183,3 +183,19 @@ def test_every_registered_method_is_found_without_importing_its_module_first():
     assert not missing, f"add to registry._LAZY: {missing}"
     for e in entries:
         assert e.factory.__module__ in _modules(e.name), (e.name, e.space, e.factory.__module__)
+
+
+def test_limit_change_with_an_anchor_caps_the_distance_from_it():
+    """``anchor``: each channel ends within ``factor`` x the input's noise (RMS) of the anchor, on the line from the
+    anchor to the cleaned output; channels already that close are left as cleaned."""
+    from mocapnet.selfcheck import limit_change, noise_level
+
+    rng = np.random.default_rng(0)
+    noisy = np.cumsum(rng.normal(0, 0.5, (400, 3)), axis=0) + rng.normal(0, 2.0, (400, 3))
+    anchor = noisy + 0.1
+    cleaned = anchor + np.array([0.1, 5.0, 20.0])  # channel 0 close to the anchor, 1 and 2 far
+    out = limit_change(noisy, cleaned, 1.0, anchor=anchor)
+    cap = noise_level(noisy)
+    np.testing.assert_allclose(out[:, 0], cleaned[:, 0])
+    np.testing.assert_allclose(np.sqrt(((out - anchor)[:, 1:] ** 2).mean(0)), cap[1:])
+    np.testing.assert_array_equal(limit_change(noisy, cleaned, 1.0), limit_change(noisy, cleaned, 1.0, anchor=noisy))

@@ -46,10 +46,12 @@ from mocapnet.kinematics import wrap_near
 from mocapnet.methods.registry import MethodContext, build_method, register
 from mocapnet.motion import Motion, Skeleton
 from mocapnet.nn.variants import VARIANTS, accepts, method_of, serves
+from mocapnet.selfcheck import limit_change
 
 _HELP = (
     "{what}; checkpoint: NAME=PATH, default: the shipped one for the skeleton; options mode=sequence|windowed, "
-    "tta=reverse|warp|reverse+warp (self-ensemble), blend=METHOD (mean with an angle method){extra}"
+    "tta=reverse|warp|reverse+warp (self-ensemble), blend=METHOD (mean with an angle method), anchor=METHOD "
+    "(the self-check caps the distance from that method's output instead of from the input){extra}"
 )
 _EBD_EXTRA = (
     ", rehearse=N (per gap N stand-in gaps where the truth is known; a gap keeps the share of the network's correction"
@@ -225,6 +227,7 @@ def _single(method: str):
         limit: float | None = None,
         tta: str | None = None,
         blend: str | None = None,
+        anchor: str | None = None,
         rehearse: int | None = None,
         rehearse_margin: float | None = None,
         rehearse_min_s: float | None = None,
@@ -234,7 +237,9 @@ def _single(method: str):
     ):
         """``limit``: EBF's self-check factor (``selfcheck.limit_change``; default: the checkpoint's, 0: off).
         ``tta``: the self-ensemble (``tta_passes``). ``blend``: an angle method whose output is averaged with
-        the network's (weight 1/2, on the circle) — a blend, reported under its own method string.
+        the network's (weight 1/2, on the circle) — a blend, reported under its own method string. ``anchor``:
+        an angle method the self-check measures the network's change from (``limit_change(anchor=…)``: each
+        channel's RMS distance from that method's output capped at ``limit`` × the input's noise).
         ``rehearse``, ``rehearse_margin``, ``rehearse_min_s``: EBD's rehearsal check (``ebd.GapBlend``; default:
         the checkpoint's blend; ``rehearse=0``: off). ``gate_end``: EBD's length gate ends here (s; ``GapBlend.gate_s``
         keeps its start)."""
@@ -254,6 +259,7 @@ def _single(method: str):
         except ValueError as exc:
             raise ValueError(f"{method}: {exc}") from None
         partner = _blend_partner(method, blend, context)
+        anchored = _blend_partner(method, anchor, context)
         rehearsal = {
             k: v
             for k, v in (
@@ -299,11 +305,18 @@ def _single(method: str):
             sk, fps = noisy.skeleton, noisy.fps
             gap_blend = blend_of(model)
 
+            own_check = 0.0 if anchored is not None else limit  # an anchored check replaces the network's own
+
             def once(channels: np.ndarray, gaps: np.ndarray) -> np.ndarray:
-                return clean_channels(model, channels, gaps, sk, fps, mode, gap_blend, change_limit=limit)
+                return clean_channels(model, channels, gaps, sk, fps, mode, gap_blend, change_limit=own_check)
 
             idx = scored_index(sk)
             out = self_ensemble(once, noisy.channels, mask, idx, passes)
+            if anchored is not None:
+                factor = float(model.hparams.get("change_limit", 0.0)) if limit is None else limit
+                if factor > 0:
+                    seen = lerp_fill(noisy.channels, mask)[:, idx]
+                    out[:, idx] = limit_change(seen, out[:, idx], factor, anchor=anchored(noisy, mask)[:, idx])
             if partner is not None:
                 out[:, idx] = tta_mean([out[:, idx], partner(noisy, mask)[:, idx]])
             return out

@@ -145,3 +145,23 @@ def test_blend_is_the_circular_mean_with_the_partner(clip, ebf_path):
     circular_close(out[:, idx], tta_mean([net[:, idx], smooth[:, idx]]), atol=1e-9)
     unscored = ~clip.skeleton.scored_mask
     np.testing.assert_array_equal(out[:, unscored], net[:, unscored])
+
+
+def test_anchor_option_caps_each_channel_near_the_anchor_method(clip, ebf_path):
+    """``anchor=gaussian-cv``: the network's own self-check is replaced by one that caps each scored channel's RMS
+    distance from gaussian-cv's output at ``limit`` x the input's noise; unscored channels stay the input's."""
+    from mocapnet.fill import lerp_fill
+    from mocapnet.selfcheck import noise_level
+
+    noisy, mask = noisy_copy(clip)
+    idx = scored_index(clip.skeleton)
+    free = build_method(f"ebf={ebf_path}:limit=0").clean(noisy, mask)
+    anchored = build_method(f"ebf={ebf_path}:anchor=gaussian-cv,limit=0.2").clean(noisy, mask)
+    smooth = build_method("gaussian-cv").clean(noisy, mask)
+    distance = np.sqrt((wrap_deg(anchored - smooth)[:, idx] ** 2).mean(axis=0))
+    cap = 0.2 * noise_level(lerp_fill(noisy.channels, mask)[:, idx])
+    assert (distance <= cap + 1e-9).all()
+    free_distance = np.sqrt((wrap_deg(free - smooth)[:, idx] ** 2).mean(axis=0))
+    assert (free_distance > cap + 1e-6).any()  # the cap did bind somewhere
+    unscored = np.setdiff1d(np.arange(clip.channels.shape[1]), idx)
+    np.testing.assert_array_equal(anchored[:, unscored], free[:, unscored])
