@@ -79,7 +79,7 @@ def cv_gaussian(
     divisors = {s: 1.0 - _self_weights(s, n) for s in fits}
     for c in range(0, x.shape[1], COLUMN_BLOCK):
         cols = slice(c, c + COLUMN_BLOCK)
-        raw = x[:, cols]
+        raw, picked = x[:, cols], chosen[cols]  # picked: a view of this block's widths
         unwrapped = raw if period is None else np.unwrap(raw, period=period, axis=0)
         weight = np.ones(raw.shape) if observed is None else np.asarray(observed[:, cols], dtype=np.float64)
         counted = weight.sum(axis=0)
@@ -91,9 +91,9 @@ def cv_gaussian(
             better = usable & (score < best)
             if better.any():
                 best[better] = score[better]
-                chosen[c : c + raw.shape[1]][better] = sigma
+                picked[better] = sigma
                 out[:, cols][:, better] = smooth[:, better] + (raw - unwrapped)[:, better]
-        kept = chosen[c : c + raw.shape[1]] == KEEP
+        kept = picked == KEEP
         out[:, cols][:, kept] = raw[:, kept]
     return out, chosen
 

@@ -61,7 +61,8 @@ def lerp_fill(channels: np.ndarray, mask: np.ndarray, period: float | None = Non
         if miss.all():
             continue
         seen, gaps = t[~miss], t[miss]
-        before = np.maximum(np.searchsorted(seen, gaps) - 1, 0)  # the observed sample whose branch a gap keeps
+        if period is not None:  # the observed sample whose branch each gap sample keeps
+            before = np.maximum(np.searchsorted(seen, gaps) - 1, 0)
         for c in cols:
             values = out[~miss, c]
             if period is None:

@@ -209,13 +209,13 @@ def self_ensemble(
     return result
 
 
-def _blend_partner(method: str, blend: str | None, context: MethodContext) -> Callable | None:
-    """The angle method ``blend`` names, built with ``context`` (None when not asked for); ValueError for a
-    gap filler (EBD) or a method that is not in the angle space."""
+def _blend_partner(method: str, blend: str | None, context: MethodContext, option: str = "blend") -> Callable | None:
+    """The angle method ``blend`` names (given as ``option``), built with ``context`` (None when not asked for);
+    ValueError for a gap filler (EBD) or a method that is not in the angle space."""
     if blend is None:
         return None
     if method == "ebd":
-        raise ValueError("ebd: blend is for the denoisers (EBF variants, bf, nn), not for gap filling")
+        raise ValueError(f"ebd: {option} is for the denoisers (EBF variants, bf, nn), not for gap filling")
     return build_method(str(blend), context, space="angles").clean
 
 
@@ -259,7 +259,7 @@ def _single(method: str):
         except ValueError as exc:
             raise ValueError(f"{method}: {exc}") from None
         partner = _blend_partner(method, blend, context)
-        anchored = _blend_partner(method, anchor, context)
+        anchored = _blend_partner(method, anchor, context, option="anchor")
         rehearsal = {
             k: v
             for k, v in (
