@@ -9,6 +9,8 @@ copies the training-set normaliser into the model, and fits with a Lightning ``T
 ``cfg.trainer``, TensorBoard logging from ``cfg.logger`` and two checkpoints under ``<run_dir>/checkpoints``:
 ``best.ckpt`` (lowest validation error; model selection uses validation only) and ``last.ckpt``
 (``ckpt_path=last`` resumes a killed run from it, optimizer, scheduler, data stream and time budget included).
+``init_from=PATH`` starts a new run from another run's weights (a warm restart: fresh optimizer, schedule and
+budget; the model's hyper-parameters must be the checkpoint's); a run that resumes from ``last.ckpt`` ignores it.
 With ``ema_decay`` set, an exponential moving average of the weights (Lightning's ``EMAWeightAveraging``) is
 what validation scores and what both checkpoints hold as ``state_dict``.
 """
@@ -93,6 +95,29 @@ def resume_path(ckpt_path: str | None, ckpt_dir: Path, averaged: bool = False) -
     return str(path)
 
 
+def initial_weights(model: CleanerModule, path: str | Path) -> None:
+    """Load the weights (normaliser included) of the checkpoint at ``path`` into ``model``, read as data
+    (``checkpoints.read_checkpoint``). MocapFileError naming the file when it holds no weights, was trained for
+    another network class or skeleton, or its tensors do not fit ``model`` (other sizes or layers)."""
+    ckpt = read_checkpoint(path)
+    state = ckpt.get("state_dict")
+    if not isinstance(state, dict):
+        raise MocapFileError(f"{path}: holds no state_dict to start from")
+    kind, wanted = ckpt.get("mocapnet_model"), type(model).__name__
+    if kind is not None and kind != wanted:
+        raise MocapFileError(f"{path}: holds {kind} weights, this run trains {wanted}")
+    theirs = (ckpt.get("hyper_parameters") or {}).get("skeleton_hash")
+    if theirs is not None and theirs != model.hparams.get("skeleton_hash"):
+        raise MocapFileError(
+            f"{path}: trained on another skeleton ({theirs}, this run's data: {model.hparams.get('skeleton_hash')})"
+        )
+    try:
+        model.load_state_dict({k: v.float() if v.is_floating_point() else v for k, v in state.items()})
+    except RuntimeError as exc:
+        reason = " ".join(str(exc).split())[:300]
+        raise MocapFileError(f"{path}: its weights do not fit this run's model ({reason})") from None
+
+
 def build(cfg: DictConfig) -> tuple[MotionDataModule, CleanerModule]:
     """Data module (set up) and a fresh model sized for it, with its normaliser set. The interpolation the data
     puts into gaps (``data.spline_max_s``) must be the one the model corrects (an EBD's ``spline_max_s``; other
@@ -140,6 +165,8 @@ def train(cfg: DictConfig) -> Path:
     run_dir.mkdir(parents=True, exist_ok=True)
     (run_dir / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
     data, model = build(cfg)
+    if ckpt_path is None and cfg.get("init_from"):
+        initial_weights(model, cfg.init_from)
     best = ModelCheckpoint(dirpath=ckpt_dir, filename="best", monitor=model.val_metric, mode="min", save_top_k=1)
     # Lightning >= 2.6 writes ``save_last`` only when the monitored score improves, so a run resumed after a
     # plateau would lose every epoch since its best: the latest state is a checkpoint of its own, every epoch

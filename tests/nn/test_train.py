@@ -120,6 +120,38 @@ def test_last_checkpoint_is_the_latest_epoch_even_when_validation_stops_improvin
     assert sorted(p.name for p in ckpts.iterdir()) == ["best.ckpt", "last.ckpt"]
 
 
+def test_init_from_starts_a_new_run_from_another_runs_weights(tmp_path):
+    """A warm restart with lr=0 must end with exactly the weights it started from (fresh optimizer and
+    schedule, same tensors); weights that do not fit, or of another network, are refused naming the file."""
+    source = _final_state(tmp_path, "source", 1)["state_dict"]
+    start = tmp_path / "source" / "checkpoints" / "last.ckpt"
+    cfg = compose_cfg(
+        [f"runs_root={tmp_path}", "name=warm", "trainer.max_epochs=1", "model.lr=0.0", f"init_from={start}"]
+        + QUICK
+        + TINY_MODEL["ebf"]
+    )
+    train(cfg)
+    warm = read_checkpoint(tmp_path / "warm" / "checkpoints" / "last.ckpt")
+    assert warm["global_step"] == 2  # a new run: its own steps, not the source's continued
+    for key, value in source.items():
+        torch.testing.assert_close(warm["state_dict"][key], value, rtol=0, atol=0)
+    wider = compose_cfg(
+        [f"runs_root={tmp_path}", "name=wider", "trainer.max_epochs=1", f"init_from={start}", "model.hidden=12"]
+        + QUICK
+        + TINY_MODEL["ebf"][1:]
+    )
+    with pytest.raises(MocapFileError, match="do not fit"):
+        train(wider)
+    other = compose_cfg(
+        [f"runs_root={tmp_path}", "name=other", "model=ebd", "corruption=gaps", f"init_from={start}"]
+        + QUICK
+        + TINY_MODEL["ebd"]
+    )
+    with pytest.raises(MocapFileError, match="holds EBF weights, this run trains EBD"):
+        train(other)
+    assert not (tmp_path / "wider" / "checkpoints").exists() and not (tmp_path / "other" / "checkpoints").exists()
+
+
 def test_mocapnet_train_runs_in_process_and_writes_under_the_cwd(tmp_path, monkeypatch, capsys):
     from mocapnet.cli import main
 
