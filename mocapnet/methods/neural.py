@@ -57,12 +57,22 @@ _EBD_EXTRA = (
     ", rehearse=N (per gap N stand-in gaps where the truth is known; a gap keeps the share of the network's correction"
     " that fitted them), rehearse_mix=0 (all or nothing: interpolate the gaps where the network lost),"
     " rehearse_pool=W (0-1: weight of the share fitted to all the clip's stand-ins together),"
+    " short_pool=1 (gaps shorter than the gate's end keep one share fitted to all their stand-ins together,"
+    " instead of each gap's verdict),"
     " gate_end=S (seconds: where the length gate ends — shorter gaps keep a share of the network's correction"
     " growing with their length; with the rehearsal, gaps at least this long get the fitted share, shorter ones"
     " its all-or-nothing verdict)"
 )
 _HELP_PAIR = "{what}; checkpoints: EBD,EBF, default: the shipped ones for the skeleton; option mode=sequence|windowed"
-_BLEND_OPTIONS = ("rehearse", "rehearse_margin", "rehearse_min_s", "rehearse_mix", "rehearse_pool", "gate_end")
+_BLEND_OPTIONS = (
+    "rehearse",
+    "rehearse_margin",
+    "rehearse_min_s",
+    "rehearse_mix",
+    "rehearse_pool",
+    "short_pool",
+    "gate_end",
+)
 _INDEX = Path(__file__).resolve().parents[1] / "checkpoints" / "index.json"
 
 
@@ -233,6 +243,7 @@ def _single(method: str):
         rehearse_min_s: float | None = None,
         rehearse_mix: int | None = None,
         rehearse_pool: float | None = None,
+        short_pool: int | None = None,
         gate_end: float | None = None,
     ):
         """``limit``: EBF's self-check factor (``selfcheck.limit_change``; default: the checkpoint's, 0: off).
@@ -240,8 +251,9 @@ def _single(method: str):
         the network's (weight 1/2, on the circle) — a blend, reported under its own method string. ``anchor``:
         an angle method the self-check measures the network's change from (``limit_change(anchor=…)``: each
         channel's RMS distance from that method's output capped at ``limit`` × the input's noise).
-        ``rehearse``, ``rehearse_margin``, ``rehearse_min_s``: EBD's rehearsal check (``ebd.GapBlend``; default:
-        the checkpoint's blend; ``rehearse=0``: off). ``gate_end``: EBD's length gate ends here (s; ``GapBlend.gate_s``
+        ``rehearse``, ``rehearse_margin``, ``rehearse_min_s``, ``rehearse_mix``, ``rehearse_pool``,
+        ``short_pool``: EBD's rehearsal check (``ebd.GapBlend``; default: the checkpoint's blend; ``rehearse=0``:
+        off). ``gate_end``: EBD's length gate ends here (s; ``GapBlend.gate_s``
         keeps its start)."""
         from mocapnet.nn.ebd import GapBlend, as_blend
         from mocapnet.nn.features import scored_index
@@ -268,6 +280,7 @@ def _single(method: str):
                 ("rehearse_min_s", rehearse_min_s),
                 ("rehearse_mix", rehearse_mix),
                 ("rehearse_pool", rehearse_pool),
+                ("short_pool", short_pool),
                 ("gate_end", gate_end),
             )
             if v is not None

@@ -144,7 +144,8 @@ class GapBlend:
     best (least squares, clipped to [0, 1]); shorter gaps, whose small correction makes that share noisy, keep
     the verdict. ``rehearse_pool`` (0 … 1; with ``rehearse_mix`` only): the weight of the clip's pooled share
     (least squares over the stand-ins of all those gaps together) against each gap's own, which few stand-ins
-    make noisy.
+    make noisy. ``short_pool``: instead of the verdict, the gaps shorter than ``gate_s[1]`` keep one share per
+    clip, fitted (least squares, clipped to [0, 1]) over the stand-ins of all of them together.
     """
 
     spline_max_s: float = 0.5
@@ -157,6 +158,7 @@ class GapBlend:
     rehearse_min_s: float = 0.0
     rehearse_mix: bool = False
     rehearse_pool: float = 0.0
+    short_pool: bool = False
 
 
 #: The shipped setting: the blend chosen on bandai2 fold 1 (``scripts/bench_ebd.py --tune``), and the rehearsal
@@ -173,18 +175,27 @@ def _whole(value: Any) -> int:
     return int(float(value))
 
 
-def _flag(value: Any) -> bool:
-    """``value`` as a bool if it is one, or 0 / 1, else ValueError."""
-    if isinstance(value, (bool, np.bool_)) or value in (0, 1):
-        return bool(value)
-    raise ValueError(f"rehearse_mix must be 0 or 1, got {value!r}")
+def _flag(name: str) -> Callable[[Any], bool]:
+    """A converter giving ``value`` as a bool if it is one, or 0 / 1, else ValueError naming ``name``."""
+
+    def convert(value: Any) -> bool:
+        if isinstance(value, (bool, np.bool_)) or value in (0, 1):
+            return bool(value)
+        raise ValueError(f"{name} must be 0 or 1, got {value!r}")
+
+    return convert
 
 
 def as_blend(settings: Mapping[str, Any]) -> GapBlend:
     """A ``GapBlend`` from its fields as stored in a checkpoint (``gate_s`` as a list); ValueError naming
     what is wrong."""
     try:
-        kinds = {"gate_s": tuple, "rehearsals": _whole, "rehearse_mix": _flag}
+        kinds = {
+            "gate_s": tuple,
+            "rehearsals": _whole,
+            "rehearse_mix": _flag("rehearse_mix"),
+            "short_pool": _flag("short_pool"),
+        }
         blend = GapBlend(**{k: kinds.get(k, float)(v) for k, v in settings.items()})
     except (TypeError, ValueError) as err:
         raise ValueError(f"gap_blend {dict(settings)!r} is not a GapBlend: {err}") from None
@@ -322,8 +333,9 @@ def rehearse(
     ``blend.rehearse_margin`` × the blend's (then none); with ``blend.rehearse_mix`` a gap at least
     ``blend.gate_s[1]`` long keeps instead the least-squares share of the blend's correction to the
     interpolation on its stand-ins (all of it when the blend did not move the stand-ins at all), mixed with
-    weight ``blend.rehearse_pool`` with the share fitted to the stand-ins of all those gaps together. Gaps
-    without a stand-in keep it all (nothing to judge by)."""
+    weight ``blend.rehearse_pool`` with the share fitted to the stand-ins of all those gaps together; with
+    ``blend.short_pool`` the shorter gaps keep instead the share fitted to the stand-ins of all of them together.
+    Gaps without a stand-in keep it all (nothing to judge by)."""
     gaps = gap_list(mask)
     keep = np.ones(len(gaps))
     if blend.rehearsals <= 0:
@@ -336,13 +348,16 @@ def rehearse(
     base = gap_fill(trial, both, blend.spline_max_s * fps)
     filled = blend_gaps(trial, both, network(both), fps, replace(blend, rehearsals=0))[0]
     fits: dict[int, tuple[float, float]] = {}  # mix-eligible gap -> (step · residual, step²) over its stand-ins
+    short: dict[int, tuple[float, float]] = {}  # with short_pool, the same for each shorter gap
     for g, ((cols, a, b), places) in enumerate(zip(gaps, stand_ins)):
         if places:
             rows = np.concatenate([np.arange(s, e) for s, e in places])
             truth, fill_s, base_s = (x[rows][:, cols] for x in (channels, filled, base))
-            if blend.rehearse_mix and b - a >= blend.gate_s[1] * fps:
+            long_gap = b - a >= blend.gate_s[1] * fps
+            if (blend.rehearse_mix and long_gap) or (blend.short_pool and not long_gap):
                 step = wrap_deg(fill_s - base_s)
-                fits[g] = (float((step * wrap_deg(truth - base_s)).sum()), float((step**2).sum()))
+                fit = (float((step * wrap_deg(truth - base_s)).sum()), float((step**2).sum()))
+                (fits if long_gap else short)[g] = fit
                 continue
             err = [float((wrap_deg(x - truth) ** 2).sum()) for x in (fill_s, base_s)]
             keep[g] = float(err[1] >= blend.rehearse_margin * err[0])
@@ -350,6 +365,8 @@ def rehearse(
         pooled = _share(*np.sum(list(fits.values()), axis=0))
         for g, fit in fits.items():
             keep[g] = (1.0 - blend.rehearse_pool) * _share(*fit) + blend.rehearse_pool * pooled
+    if short:
+        keep[list(short)] = _share(*np.sum(list(short.values()), axis=0))
     return keep
 
 

@@ -240,6 +240,42 @@ def test_rehearse_pool_mixes_each_gaps_share_with_the_clips_pooled_one():
         as_blend({"rehearse_pool": 1.5})
 
 
+def test_short_pool_gives_every_short_gap_one_share_fitted_over_all_their_stand_ins():
+    """With ``short_pool`` the gaps shorter than the gate's end keep one share per clip: the least-squares fit of
+    the blend's correction over the stand-ins of all of them at once; longer gaps keep their own fitted share."""
+    from mocapnet.fill import gap_fill
+
+    truth = smooth_channels(600)
+    mask = gap_mask(truth.shape, [(100, 104, [0]), (200, 203, [1]), (400, 405, [2]), (300, 330, [3, 4])])
+    channels = np.where(mask, np.nan, truth)
+    blend = dataclasses.replace(GAP_BLEND, rehearsals=3, rehearse_mix=True, short_pool=True, speed_factor=np.inf)
+
+    def overshoot(m):  # 10x: short gaps keep only part of the network's correction, so it must be far off
+        base = gap_fill(np.where(m, np.nan, truth), m, blend.spline_max_s * FPS)
+        return base + 10.0 * (truth - base)
+
+    shares = rehearse(channels, mask, FPS, blend, overshoot)
+    fake, places = stand_in_gaps(mask, 3)
+    both = mask | fake
+    base = gap_fill(np.where(both, np.nan, truth), both, blend.spline_max_s * FPS)
+    filled = blend_gaps(np.where(both, np.nan, truth), both, overshoot(both), FPS, blend)[0]
+    step, resid = filled - base, truth - base
+    rows = [(np.concatenate([np.arange(s, e) for s, e in p]), c) for p, (c, _, _) in zip(places[:3], gap_list(mask))]
+    pooled = sum(float((step[r][:, c] * resid[r][:, c]).sum()) for r, c in rows) / sum(
+        float((step[r][:, c] ** 2).sum()) for r, c in rows
+    )
+    assert 0.0 < pooled < 1.0
+    np.testing.assert_allclose(shares[:3], [pooled, pooled, pooled], atol=1e-9)
+    assert 0.1 <= shares[3] < 0.2  # the long gap's own share: 1/10, a little more where the taper thins the step
+    # without it each short gap gets its all-or-nothing verdict
+    assert set(rehearse(channels, mask, FPS, dataclasses.replace(blend, short_pool=False), overshoot)[:3]) <= {0, 1}
+    away = rehearse(channels, mask, FPS, blend, lambda m: 2 * gap_fill(np.where(m, np.nan, truth), m, 15) - truth)
+    np.testing.assert_allclose(away, [0.0, 0.0, 0.0, 0.0])
+    np.testing.assert_allclose(rehearse(channels, mask, FPS, blend, lambda m: truth), [1.0, 1.0, 1.0, 1.0])
+    with pytest.raises(ValueError, match="short_pool must be 0 or 1"):
+        as_blend({"short_pool": 2})
+
+
 def test_rehearse_option_runs_one_more_pass_and_interpolates_the_gaps_it_rejects(sample, monkeypatch):
     from mocapnet.fill import gap_fill
     from mocapnet.methods.registry import build_method
