@@ -46,14 +46,56 @@ def gap_list(mask: np.ndarray) -> list[tuple[np.ndarray, int, int]]:
     return [(cols, a, b) for cols in mask_groups(mask).values() for a, b in runs(mask[:, cols[0]])]
 
 
+#: A step (degrees) across a gap above which the gap is taken to hide a wrap (e.g. 179 → -179), not motion: a
+#: gap's two edges are joined the shorter way round the circle when they differ by more than this.
+WRAP_STEP = 270.0
+
+
+def join_gaps(
+    channels: np.ndarray, mask: np.ndarray, period: float = 360.0, wrap_step: float = WRAP_STEP
+) -> tuple[np.ndarray, np.ndarray]:
+    """Angles ``channels [T, C]`` (degrees; any value where ``mask [T, C]`` is True) with each run of observed
+    samples after a gap shifted by a multiple of ``period`` so it starts within ``period / 2`` of where the run
+    before the gap ended, wherever the two differ by more than ``wrap_step`` (a gap hides a wrap: a file stored
+    in [-180, 180) whose reader could not unwrap through the gap's placeholder values). Observed runs are
+    continuous by convention (``read_bvh`` unwraps along time) and are never unwrapped inside: steps between
+    neighbouring observed frames, however large, stay as they are. Returns ``(joined [T, C], offsets [T, C])``
+    with ``channels = joined + offsets`` on observed samples; a missing sample's offset is that of the observed
+    sample before it (after it, before the first), 0 in columns never observed."""
+    joined = np.array(channels, dtype=np.float64, copy=True)
+    offsets = np.zeros_like(joined)
+    t = np.arange(joined.shape[0])
+    for cols in mask_groups(mask).values():
+        seen = t[~mask[:, cols[0]]]
+        if seen.size < 2:
+            continue
+        across = np.flatnonzero(np.diff(seen) > 1)  # observed neighbours with a gap between them
+        if not across.size:
+            continue
+        step = joined[seen[across + 1]][:, cols] - joined[seen[across]][:, cols]  # [gaps, cols]
+        turns = np.where(np.abs(step) > wrap_step, np.round(step / period), 0.0)
+        if not turns.any():
+            continue
+        shift = np.zeros((seen.size, cols.size))
+        shift[across + 1] = turns * period
+        run_offset = np.cumsum(shift, axis=0)  # per observed sample, how far its run moves
+        holder = np.clip(np.searchsorted(seen, t, side="right") - 1, 0, None)  # the observed sample at or before
+        offsets[:, cols] = run_offset[holder]
+        joined[:, cols] -= offsets[:, cols]
+    return joined, offsets
+
+
 def lerp_fill(channels: np.ndarray, mask: np.ndarray, period: float | None = None) -> np.ndarray:
     """Linear interpolation over the masked samples of ``channels [T, C]`` (mask True = missing).
 
     Missing samples before the first / after the last observed one take the nearest observed value.
-    Columns with no observed sample are left as they are. ``period`` (e.g. 360 for angles in degrees): the
-    observed samples are unwrapped first, so a gap from 170 to -170 is bridged through 180, not through 0; each
-    filled sample lies on the branch of the observed sample before its gap (after it, for a leading gap).
+    Columns with no observed sample are left as they are. ``period`` (360 for angles in degrees): a gap whose
+    edges differ by more than ``WRAP_STEP`` is bridged the shorter way round the circle (170 to -170 through 180,
+    not through 0; ``join_gaps``), each filled sample on the branch of the observed sample before its gap.
     """
+    if period is not None:
+        joined, offsets = join_gaps(channels, mask, period)
+        return np.where(mask, lerp_fill(joined, mask) + offsets, channels)  # observed samples bit for bit
     out = np.array(channels, dtype=np.float64, copy=True)
     t = np.arange(out.shape[0])
     for cols in mask_groups(mask).values():
@@ -61,15 +103,8 @@ def lerp_fill(channels: np.ndarray, mask: np.ndarray, period: float | None = Non
         if miss.all():
             continue
         seen, gaps = t[~miss], t[miss]
-        if period is not None:  # the observed sample whose branch each gap sample keeps
-            before = np.maximum(np.searchsorted(seen, gaps) - 1, 0)
         for c in cols:
-            values = out[~miss, c]
-            if period is None:
-                out[miss, c] = np.interp(gaps, seen, values)
-                continue
-            unwrapped = np.unwrap(values, period=period)
-            out[miss, c] = np.interp(gaps, seen, unwrapped) + (values - unwrapped)[before]
+            out[miss, c] = np.interp(gaps, seen, out[~miss, c])
     return out
 
 
@@ -78,14 +113,16 @@ def gap_fill(
     mask: np.ndarray,
     spline_max: float,
     interpolated: tuple[np.ndarray, np.ndarray] | None = None,
+    period: float | None = None,
 ) -> np.ndarray:
     """Interpolation of the masked samples of ``channels [T, C]`` chosen per gap: each run of missing samples
     of a column that is at most ``spline_max`` frames long takes ``spline_fill``'s value, longer runs (and every
     run when ``spline_max < 1``) take ``lerp_fill``'s. The starting point of EBD's fill and of its blend
     (``mocapnet.nn.ebd``): short gaps are best bridged by a cubic, long ones by a line. ``interpolated``:
     ``(lerp_fill, spline_fill)`` of ``channels`` when the caller has them, else computed here (the spline only
-    on columns with a short gap)."""
-    out = lerp_fill(channels, mask) if interpolated is None else np.array(interpolated[0], dtype=np.float64)
+    on columns with a short gap), with ``period`` (angles: gaps that hide a wrap bridged the shorter way round,
+    ``join_gaps``)."""
+    out = lerp_fill(channels, mask, period) if interpolated is None else np.array(interpolated[0], dtype=np.float64)
     if spline_max < 1:
         return out
     short = np.zeros(mask.shape, dtype=bool)
@@ -94,14 +131,21 @@ def gap_fill(
             short[a:b, cols] = True
     cols = np.flatnonzero(short.any(axis=0))
     if cols.size:
-        spline = spline_fill(channels[:, cols], mask[:, cols]) if interpolated is None else interpolated[1][:, cols]
+        if interpolated is None:
+            spline = spline_fill(channels[:, cols], mask[:, cols], period)
+        else:
+            spline = interpolated[1][:, cols]
         out[:, cols] = np.where(short[:, cols], spline, out[:, cols])
     return out
 
 
-def spline_fill(channels: np.ndarray, mask: np.ndarray) -> np.ndarray:
+def spline_fill(channels: np.ndarray, mask: np.ndarray, period: float | None = None) -> np.ndarray:
     """Cubic-spline interpolation (scipy ``CubicSpline``, not-a-knot) over masked samples of ``[T, C]``;
-    falls back to linear where fewer than 4 samples are observed, and holds values beyond the ends."""
+    falls back to linear where fewer than 4 samples are observed, and holds values beyond the ends.
+    ``period`` as in ``lerp_fill``."""
+    if period is not None:
+        joined, offsets = join_gaps(channels, mask, period)
+        return np.where(mask, spline_fill(joined, mask) + offsets, channels)
     out = np.array(channels, dtype=np.float64, copy=True)
     t = np.arange(out.shape[0])
     for cols in mask_groups(mask).values():

@@ -139,6 +139,8 @@ def _points_method_as_angles(method: Method):
     def clean(noisy: Motion, mask: np.ndarray) -> np.ndarray:
         sk = noisy.skeleton
         filled = lerp_fill(noisy.channels, mask)
+        rot = sk.rotation_mask  # angles the shorter way round the circle
+        filled[:, rot] = lerp_fill(noisy.channels[:, rot], mask[:, rot], 360.0)
         base = noisy.with_channels(filled)
         joint_missing = np.stack([mask[:, sk.joint_channels(j)].any(axis=1) for j in range(sk.n_joints)], axis=1)
         # A joint's position depends on its ancestors' rotations: it is missing if any ancestor is.

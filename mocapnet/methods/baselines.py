@@ -2,7 +2,9 @@
 
 The array functions live in ``mocapnet.fill`` (re-exported here: ``gaussian_smooth``, ``lerp_fill``,
 ``spline_fill``); this module registers the methods built on them. Methods change only
-the skeleton's scored channels; gaps (mask True) are filled before any smoothing.
+the skeleton's scored channels; gaps (mask True) are filled before any smoothing, and a gap whose edges differ by
+more than ``fill.WRAP_STEP`` degrees (a wrap the reader could not see through the gap) is bridged the shorter way
+round the circle, every sample coming back on the branch the file gave it (or the sample before its gap).
 """
 
 from __future__ import annotations
@@ -13,12 +15,26 @@ import numpy as np
 
 from mocapnet.adaptive_smooth import cv_gaussian, cv_gaussian_runs
 from mocapnet.corrupt import corrupt_motion, seed_for
-from mocapnet.fill import gaussian_smooth, lerp_fill, mask_groups, spline_fill
+from mocapnet.fill import gaussian_smooth, join_gaps, lerp_fill, mask_groups, spline_fill
 from mocapnet.methods.registry import MethodContext, register
 from mocapnet.motion import Markers, Motion
 from mocapnet.selfcheck import limit_change
 
 __all__ = ["gaussian_smooth", "lerp_fill", "mask_groups", "spline_fill", "tune_sigmas", "SIGMA_GRID_S"]
+
+
+#: Angles in degrees: a gap that hides a wrap is bridged the shorter way round the circle (``fill.join_gaps``).
+ANGLE_PERIOD = 360.0
+
+
+def filled_joined(noisy: Motion, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The clip's channels ``[T, C]`` with every gap that hides a wrap joined in the rotation channels
+    (``fill.join_gaps``) and the gaps filled linearly, and the offsets ``[T, C]`` (multiples of 360; 0 in the
+    other channels) that put each sample back on the file's branch: smooth the first, then add the second."""
+    rot = noisy.skeleton.rotation_mask
+    joined, offsets = noisy.channels.astype(np.float64, copy=True), np.zeros(noisy.channels.shape)
+    joined[:, rot], offsets[:, rot] = join_gaps(noisy.channels[:, rot], mask[:, rot], ANGLE_PERIOD)
+    return lerp_fill(joined, mask), offsets
 
 
 def _scored_only(noisy: Motion, result: np.ndarray) -> np.ndarray:
@@ -40,8 +56,8 @@ def _noisy(context: MethodContext):
 def _gaussian_method(sigma_s: float):
     def factory(context: MethodContext):
         def clean(noisy: Motion, mask: np.ndarray) -> np.ndarray:
-            filled = lerp_fill(noisy.channels, mask)
-            return _scored_only(noisy, gaussian_smooth(filled, sigma_s, noisy.fps))
+            filled, offsets = filled_joined(noisy, mask)
+            return _scored_only(noisy, gaussian_smooth(filled, sigma_s, noisy.fps) + offsets)
 
         return clean
 
@@ -75,10 +91,10 @@ def _gaussian_checked(context: MethodContext, limit: float = CHECK_LIMIT):
         raise ValueError(f"gaussian-58ms+check: limit must be positive, got {limit!r}")
 
     def clean(noisy: Motion, mask: np.ndarray) -> np.ndarray:
-        filled = lerp_fill(noisy.channels, mask)
+        filled, offsets = filled_joined(noisy, mask)
         scored = noisy.skeleton.scored_mask
         filled[:, scored] = limit_change(filled[:, scored], gaussian_smooth(filled[:, scored], 0.058, noisy.fps), limit)
-        return _scored_only(noisy, filled)
+        return _scored_only(noisy, filled + offsets)
 
     return clean
 
@@ -92,7 +108,7 @@ def _gaussian_checked(context: MethodContext, limit: float = CHECK_LIMIT):
 )
 def _gaussian_cv(context: MethodContext):
     def clean(noisy: Motion, mask: np.ndarray) -> np.ndarray:
-        filled = lerp_fill(noisy.channels, mask, period=360.0)
+        filled = lerp_fill(noisy.channels, mask, ANGLE_PERIOD)
         scored = noisy.skeleton.scored_mask
         filled[:, scored] = cv_gaussian(filled[:, scored], observed=~mask[:, scored])[0]
         return _scored_only(noisy, filled)
@@ -103,7 +119,7 @@ def _gaussian_cv(context: MethodContext):
 @register("lerp", "angles", help="linear interpolation over gaps (no smoothing)")
 def _lerp(context: MethodContext):
     def clean(noisy: Motion, mask: np.ndarray) -> np.ndarray:
-        return _scored_only(noisy, lerp_fill(noisy.channels, mask))
+        return _scored_only(noisy, lerp_fill(noisy.channels, mask, ANGLE_PERIOD))
 
     return clean
 
@@ -111,7 +127,7 @@ def _lerp(context: MethodContext):
 @register("spline", "angles", help="cubic spline over gaps (no smoothing)")
 def _spline(context: MethodContext):
     def clean(noisy: Motion, mask: np.ndarray) -> np.ndarray:
-        return _scored_only(noisy, spline_fill(noisy.channels, mask))
+        return _scored_only(noisy, spline_fill(noisy.channels, mask, ANGLE_PERIOD))
 
     return clean
 
@@ -148,9 +164,10 @@ def tune_sigmas(
         noisy, mask = corrupt_motion(
             motion, corruption, np.random.default_rng(seed_for(corpus, motion.name, -1, corruption))
         )
-        filled = lerp_fill(noisy, mask)[:, scored]
+        joined, offsets = join_gaps(noisy[:, scored], mask[:, scored], ANGLE_PERIOD)
+        filled = lerp_fill(joined, mask[:, scored])
         for g, sigma in enumerate(grid_s):
-            err = gaussian_smooth(filled, sigma, motion.fps) - motion.channels[:, scored]
+            err = gaussian_smooth(filled, sigma, motion.fps) + offsets - motion.channels[:, scored]
             sse[k, g] = np.nansum(err**2, axis=0)
         count[k] = np.isfinite(filled).sum()
 
@@ -192,7 +209,8 @@ def _gaussian_tuned(
     sigmas = tune_sigmas(train, corruption or context.corruption, corpus, max_clips=max_clips)
 
     def clean(noisy: Motion, mask: np.ndarray) -> np.ndarray:
-        return _scored_only(noisy, gaussian_smooth(lerp_fill(noisy.channels, mask), sigmas, noisy.fps))
+        filled, offsets = filled_joined(noisy, mask)
+        return _scored_only(noisy, gaussian_smooth(filled, sigmas, noisy.fps) + offsets)
 
     clean.sigmas_s = sigmas  # type: ignore[attr-defined]
     return clean

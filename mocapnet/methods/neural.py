@@ -328,7 +328,7 @@ def _single(method: str):
             if anchored is not None:
                 factor = float(model.hparams.get("change_limit", 0.0)) if limit is None else limit
                 if factor > 0:
-                    seen = lerp_fill(noisy.channels, mask)[:, idx]
+                    seen = lerp_fill(noisy.channels[:, idx], mask[:, idx], 360.0)
                     out[:, idx] = limit_change(seen, out[:, idx], factor, anchor=anchored(noisy, mask)[:, idx])
             if partner is not None:
                 out[:, idx] = tta_mean([out[:, idx], partner(noisy, mask)[:, idx]])

@@ -1,0 +1,71 @@
+"""A gap can hide a wrap: a BVH that stores a turning root in [-180, 180) is unwrapped along time when read, but
+not through a gap whose placeholder samples break the chain. Every angle method joins such a gap the shorter way
+round the circle (``fill.join_gaps``), so it gives the same angles whichever branch the runs after a gap are on."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from mocapnet.corrupt import corrupt_motion
+from mocapnet.fill import join_gaps, lerp_fill, spline_fill
+from mocapnet.kinematics import wrap_deg
+from mocapnet.methods.registry import build_method
+
+METHODS = ["lerp", "spline", "gaussian-58ms", "gaussian-125ms", "gaussian-58ms+check", "gaussian-cv", "ebf", "ebd"]
+
+
+@pytest.fixture(scope="module")
+def corrupted(cmu):
+    """The CMU clip's first 600 frames with noise, and two gaps in every other scored channel; in ``moved`` the
+    runs of those channels after each gap are stored on other branches (+360 after the first, -360 after the
+    second): the same angles."""
+    motion = cmu.with_channels(cmu.channels[:600])
+    noisy, mask = corrupt_motion(motion, "angular-0.5", np.random.default_rng(3))
+    cols = np.flatnonzero(motion.skeleton.scored_mask)[::2]
+    mask = mask.copy()
+    mask[90:111, cols] = mask[290:311, cols] = True
+    noisy = np.where(mask, np.nan, noisy)
+    moved = noisy.copy()
+    moved[111:290, cols] += 360.0
+    moved[311:, cols] -= 360.0
+    return motion, noisy, moved, mask
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_angle_methods_join_a_gap_that_hides_a_wrap(corrupted, method):
+    motion, noisy, moved, mask = corrupted
+    clean = build_method(method).clean
+    plain = clean(motion.with_channels(noisy), mask)
+    joined = clean(motion.with_channels(moved), mask)
+    scored = motion.skeleton.scored_mask
+    np.testing.assert_allclose(wrap_deg(joined - plain)[:, scored], 0.0, atol=1e-6)
+    seen = ~mask & scored
+    # each observed sample stays on the branch the file gave it and changes by what it did on the plain branches
+    np.testing.assert_allclose((joined - moved)[seen], (plain - noisy)[seen], atol=1e-6)
+    if method in ("lerp", "spline", "ebd"):  # gap fillers keep observed samples bit for bit
+        np.testing.assert_array_equal(joined[seen], moved[seen])
+
+
+def test_join_gaps_moves_only_runs_after_a_gap_that_hides_a_wrap():
+    t = np.arange(40, dtype=np.float64)
+    truth = 160.0 + 2.0 * t  # 160 … 238, stored wrapped: it crosses +180 at t = 10
+    stored = wrap_deg(truth)[:, None]
+    mask = np.zeros_like(stored, dtype=bool)
+    mask[5:15] = True
+    for fill in (lerp_fill, spline_fill):
+        out = fill(stored, mask, 360.0)
+        np.testing.assert_allclose(out[5:15, 0], truth[5:15])  # the branch of frame 4: 170 … 188, through 180
+        np.testing.assert_array_equal(out[~mask[:, 0]], stored[~mask[:, 0]])
+        assert np.abs(wrap_deg(fill(stored, mask)[5:15, 0] - truth[5:15])).max() > 90  # without: through 0
+    joined, offsets = join_gaps(stored, mask)
+    np.testing.assert_allclose(joined[~mask[:, 0], 0], truth[~mask[:, 0]])
+    np.testing.assert_array_equal(offsets[:15, 0], 0.0)
+    np.testing.assert_array_equal(offsets[15:, 0], -360.0)
+    # inside an observed run nothing is unwrapped, however large the step (the reader unwrapped the file)
+    jumpy = stored.copy()
+    jumpy[20:] += 300.0
+    np.testing.assert_array_equal(join_gaps(jumpy, np.zeros_like(mask))[0], jumpy)
+    # a gap whose edges differ by less than WRAP_STEP is motion, not a wrap
+    swing = np.concatenate([np.zeros(5), np.full(35, 200.0)])[:, None]
+    np.testing.assert_array_equal(join_gaps(swing, mask)[1], 0.0)
