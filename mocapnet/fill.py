@@ -108,21 +108,28 @@ def lerp_fill(channels: np.ndarray, mask: np.ndarray, period: float | None = Non
     return out
 
 
+def lerp_fill_angles(channels: np.ndarray, mask: np.ndarray, angles: np.ndarray) -> np.ndarray:
+    """``lerp_fill`` of ``channels [T, C]``, the columns where ``angles [C]`` is True (degrees) with
+    ``period=360`` (a gap that hides a wrap bridged the shorter way round), the others plainly."""
+    out = np.array(channels, dtype=np.float64, copy=True)
+    out[:, ~angles] = lerp_fill(channels[:, ~angles], mask[:, ~angles])
+    out[:, angles] = lerp_fill(channels[:, angles], mask[:, angles], 360.0)
+    return out
+
+
 def gap_fill(
     channels: np.ndarray,
     mask: np.ndarray,
     spline_max: float,
     interpolated: tuple[np.ndarray, np.ndarray] | None = None,
-    period: float | None = None,
 ) -> np.ndarray:
     """Interpolation of the masked samples of ``channels [T, C]`` chosen per gap: each run of missing samples
     of a column that is at most ``spline_max`` frames long takes ``spline_fill``'s value, longer runs (and every
     run when ``spline_max < 1``) take ``lerp_fill``'s. The starting point of EBD's fill and of its blend
     (``mocapnet.nn.ebd``): short gaps are best bridged by a cubic, long ones by a line. ``interpolated``:
     ``(lerp_fill, spline_fill)`` of ``channels`` when the caller has them, else computed here (the spline only
-    on columns with a short gap), with ``period`` (angles: gaps that hide a wrap bridged the shorter way round,
-    ``join_gaps``)."""
-    out = lerp_fill(channels, mask, period) if interpolated is None else np.array(interpolated[0], dtype=np.float64)
+    on columns with a short gap). Angles with a gap that may hide a wrap: join them first (``join_gaps``)."""
+    out = lerp_fill(channels, mask) if interpolated is None else np.array(interpolated[0], dtype=np.float64)
     if spline_max < 1:
         return out
     short = np.zeros(mask.shape, dtype=bool)
@@ -131,10 +138,7 @@ def gap_fill(
             short[a:b, cols] = True
     cols = np.flatnonzero(short.any(axis=0))
     if cols.size:
-        if interpolated is None:
-            spline = spline_fill(channels[:, cols], mask[:, cols], period)
-        else:
-            spline = interpolated[1][:, cols]
+        spline = spline_fill(channels[:, cols], mask[:, cols]) if interpolated is None else interpolated[1][:, cols]
         out[:, cols] = np.where(short[:, cols], spline, out[:, cols])
     return out
 

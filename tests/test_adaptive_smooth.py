@@ -51,7 +51,7 @@ def test_channels_are_smoothed_across_the_wrap_and_returned_on_their_own_branch(
     truth = 170.0 + np.linspace(0, 40, 600)[:, None]  # crosses 180
     noisy = truth + rng.normal(0, 1.0, truth.shape)
     wrapped = (noisy + 180.0) % 360.0 - 180.0
-    y, sigma = cv_gaussian(wrapped)
+    y, sigma = cv_gaussian(wrapped, period=360.0)
     direct, _ = cv_gaussian(noisy)
     np.testing.assert_allclose((y - direct + 180.0) % 360.0 - 180.0, 0.0, atol=1e-9)
     assert np.all(np.abs(y - wrapped) < 10)  # each sample stays on its own branch

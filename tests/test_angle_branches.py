@@ -12,7 +12,17 @@ from mocapnet.fill import join_gaps, lerp_fill, spline_fill
 from mocapnet.kinematics import wrap_deg
 from mocapnet.methods.registry import build_method
 
-METHODS = ["lerp", "spline", "gaussian-58ms", "gaussian-125ms", "gaussian-58ms+check", "gaussian-cv", "ebf", "ebd"]
+METHODS = [
+    "lerp",
+    "spline",
+    "gaussian-58ms",
+    "gaussian-125ms",
+    "gaussian-58ms+check",
+    "gaussian-cv",
+    "ebf",
+    "ebd",
+    "ebd+ebf",
+]
 
 
 @pytest.fixture(scope="module")
@@ -64,8 +74,12 @@ def test_join_gaps_moves_only_runs_after_a_gap_that_hides_a_wrap():
     np.testing.assert_array_equal(offsets[15:, 0], -360.0)
     # inside an observed run nothing is unwrapped, however large the step (the reader unwrapped the file)
     jumpy = stored.copy()
-    jumpy[20:] += 300.0
-    np.testing.assert_array_equal(join_gaps(jumpy, np.zeros_like(mask))[0], jumpy)
+    jumpy[20:] += 300.0  # a step of 300° between observed frames 19 and 20, after the gap
+    joined_jumpy = join_gaps(jumpy, mask)[0]
+    np.testing.assert_allclose(joined_jumpy[20, 0] - joined_jumpy[19, 0], jumpy[20, 0] - jumpy[19, 0])
+    np.testing.assert_allclose(
+        joined_jumpy[~mask[:, 0], 0], joined[~mask[:, 0], 0] + np.where(t >= 20, 300.0, 0.0)[~mask[:, 0]]
+    )
     # a gap whose edges differ by less than WRAP_STEP is motion, not a wrap
     swing = np.concatenate([np.zeros(5), np.full(35, 200.0)])[:, None]
     np.testing.assert_array_equal(join_gaps(swing, mask)[1], 0.0)

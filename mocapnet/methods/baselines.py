@@ -32,7 +32,10 @@ def filled_joined(noisy: Motion, mask: np.ndarray) -> tuple[np.ndarray, np.ndarr
     (``fill.join_gaps``) and the gaps filled linearly, and the offsets ``[T, C]`` (multiples of 360; 0 in the
     other channels) that put each sample back on the file's branch: smooth the first, then add the second."""
     rot = noisy.skeleton.rotation_mask
-    joined, offsets = noisy.channels.astype(np.float64, copy=True), np.zeros(noisy.channels.shape)
+    offsets = np.zeros(noisy.channels.shape)
+    if not mask[:, rot].any():  # no gap: nothing to join or fill (no extra work)
+        return noisy.channels.astype(np.float64, copy=True), offsets
+    joined = noisy.channels.astype(np.float64, copy=True)
     joined[:, rot], offsets[:, rot] = join_gaps(noisy.channels[:, rot], mask[:, rot], ANGLE_PERIOD)
     return lerp_fill(joined, mask), offsets
 
@@ -104,14 +107,14 @@ def _gaussian_checked(context: MethodContext, limit: float = CHECK_LIMIT):
     "angles",
     help="Gaussian smoothing with each channel's width chosen by leave-one-out cross-validation over the observed "
     "frames, from 0.25 (the input kept) to 16 frames (adaptive_smooth.cv_gaussian; gaps filled linearly first, "
-    "through the shorter way round the circle); no training, no noise estimate",
+    "a gap that hides a wrap the shorter way round the circle); no training, no noise estimate",
 )
 def _gaussian_cv(context: MethodContext):
     def clean(noisy: Motion, mask: np.ndarray) -> np.ndarray:
-        filled = lerp_fill(noisy.channels, mask, ANGLE_PERIOD)
+        filled, offsets = filled_joined(noisy, mask)
         scored = noisy.skeleton.scored_mask
         filled[:, scored] = cv_gaussian(filled[:, scored], observed=~mask[:, scored])[0]
-        return _scored_only(noisy, filled)
+        return _scored_only(noisy, filled + offsets)
 
     return clean
 

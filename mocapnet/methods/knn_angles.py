@@ -60,7 +60,7 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from mocapnet.fill import runs
+from mocapnet.fill import lerp_fill_angles, runs
 from mocapnet.kinematics import (
     inverse_kinematics,
     joint_positions,
@@ -70,7 +70,6 @@ from mocapnet.kinematics import (
     rotation_sequence,
     wrap_deg,
 )
-from mocapnet.methods.baselines import lerp_fill
 from mocapnet.methods.knn_database import SkeletonDatabase, cached_database, default_corpus
 from mocapnet.methods.knn_window import (
     FillStats,
@@ -345,7 +344,7 @@ def fill_angles(
     db.check(sk, motion.name)
     searcher = searcher or Searcher(db.points, db.clip, db.describe())
     stats = FillStats()
-    base = lerp_fill(motion.channels, mask)
+    base = lerp_fill_angles(motion.channels, mask, sk.rotation_mask)
     out = base.copy()
     scored_cols = np.flatnonzero(sk.scored_mask)
     smask = mask[:, scored_cols]

@@ -348,7 +348,8 @@ for _name, _what in _WHAT.items():
 
 @register("ebd+ebf", "angles", help=_HELP_PAIR.format(what="EBD fills gaps, then EBF denoises"))
 def _ebd_ebf(context: MethodContext, checkpoints: Sequence[str] | str = (), mode: str = "sequence"):
-    from mocapnet.nn.infer import clean_channels
+    from mocapnet.nn.features import scored_index
+    from mocapnet.nn.infer import clean_channels, join_scored
 
     checkpoints = _paths(checkpoints)
     if len(checkpoints) not in (0, 2):
@@ -360,8 +361,15 @@ def _ebd_ebf(context: MethodContext, checkpoints: Sequence[str] | str = (), mode
     def clean(noisy: Motion, mask: np.ndarray) -> np.ndarray:
         # The network's own fill: blending with interpolation (ebd.blend_gaps) assumes clean observed samples
         # and made noise+gaps worse on bandai2 fold 1 (gap error 7.49° blended vs 4.16° raw).
-        filled = clean_channels(ebd(noisy), noisy.channels, mask, noisy.skeleton, noisy.fps, mode, gap_blend=None)
+        # A gap that hides a wrap is joined once, here: EBD's output on the file's branches would step by 360° at
+        # the gap's end, inside what EBF takes for one observed run.
+        idx = scored_index(noisy.skeleton)
+        joined, offsets = join_scored(noisy.channels, mask, idx)
+        filled = clean_channels(ebd(noisy), joined, mask, noisy.skeleton, noisy.fps, mode, gap_blend=None)
         no_gaps = np.zeros_like(mask)
-        return clean_channels(ebf(noisy), filled, no_gaps, noisy.skeleton, noisy.fps, mode)
+        out = clean_channels(ebf(noisy), filled, no_gaps, noisy.skeleton, noisy.fps, mode)
+        if offsets is not None:
+            out[:, idx] += offsets
+        return out
 
     return clean

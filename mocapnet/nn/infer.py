@@ -206,6 +206,8 @@ def join_scored(channels: np.ndarray, mask: np.ndarray, idx: np.ndarray) -> tupl
     scored columns ``idx`` (``fill.join_gaps``: the observed runs after it moved by multiples of 360), and the
     offsets ``[T, len(idx)]`` that put every sample back on the file's branch; ``(channels, None)`` when no gap
     hides a wrap."""
+    if not mask[:, idx].any():  # no gap, nothing to join (the offline clean's usual case: no extra work)
+        return channels, None
     joined, offsets = join_gaps(channels[:, idx], mask[:, idx])
     if not offsets.any():
         return channels, None

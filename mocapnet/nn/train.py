@@ -95,6 +95,10 @@ def resume_path(ckpt_path: str | None, ckpt_dir: Path, averaged: bool = False) -
     return str(path)
 
 
+#: Hyper-parameters a warm restart may change: how to train, not what the weights compute.
+_RETUNABLE = frozenset({"lr", "weight_decay", "lr_patience", "lr_schedule", "dropout"})
+
+
 def initial_weights(model: CleanerModule, path: str | Path) -> None:
     """Load the weights (normaliser included) of the checkpoint at ``path`` into ``model``, read as data
     (``checkpoints.read_checkpoint``). MocapFileError naming the file when it holds no weights, was trained for
@@ -106,11 +110,15 @@ def initial_weights(model: CleanerModule, path: str | Path) -> None:
     kind, wanted = ckpt.get("mocapnet_model"), type(model).__name__
     if kind is not None and kind != wanted:
         raise MocapFileError(f"{path}: holds {kind} weights, this run trains {wanted}")
-    theirs = (ckpt.get("hyper_parameters") or {}).get("skeleton_hash")
-    if theirs is not None and theirs != model.hparams.get("skeleton_hash"):
+    theirs = ckpt.get("hyper_parameters") or {}
+    if theirs.get("skeleton_hash") is not None and theirs["skeleton_hash"] != model.hparams.get("skeleton_hash"):
         raise MocapFileError(
-            f"{path}: trained on another skeleton ({theirs}, this run's data: {model.hparams.get('skeleton_hash')})"
+            f"{path}: trained on another skeleton ({theirs['skeleton_hash']}, this run's data: "
+            f"{model.hparams.get('skeleton_hash')})"
         )
+    for key, value in model.hparams.items():  # what the weights mean (inputs, normalisation), not how to train
+        if key not in _RETUNABLE and key in theirs and theirs[key] != value:
+            raise MocapFileError(f"{path}: trained with {key}={theirs[key]!r}, this run has {key}={value!r}")
     try:
         model.load_state_dict({k: v.float() if v.is_floating_point() else v for k, v in state.items()})
     except RuntimeError as exc:
@@ -160,6 +168,8 @@ def train(cfg: DictConfig) -> Path:
     run_dir = Path(cfg.run_dir)
     ckpt_dir = run_dir / "checkpoints"
     ckpt_path = resume_path(cfg.get("ckpt_path"), ckpt_dir, averaged=bool(averaging))
+    if ckpt_path is None and cfg.get("init_from"):
+        read_checkpoint(cfg.init_from)  # a missing or unreadable file fails now, before the data is set up
     configure_torch(cfg.get("threads"))
     L.seed_everything(cfg.seed, workers=True)
     run_dir.mkdir(parents=True, exist_ok=True)

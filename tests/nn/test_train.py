@@ -121,8 +121,9 @@ def test_last_checkpoint_is_the_latest_epoch_even_when_validation_stops_improvin
 
 
 def test_init_from_starts_a_new_run_from_another_runs_weights(tmp_path):
-    """A warm restart with lr=0 must end with exactly the weights it started from (fresh optimizer and
-    schedule, same tensors); weights that do not fit, or of another network, are refused naming the file."""
+    """A warm restart with lr=0 (another learning rate: allowed) must end with exactly the weights it started
+    from (fresh optimizer and schedule, same tensors); weights of another size or network, or a missing file,
+    are refused naming the file before any data is set up."""
     source = _final_state(tmp_path, "source", 1)["state_dict"]
     start = tmp_path / "source" / "checkpoints" / "last.ckpt"
     cfg = compose_cfg(
@@ -140,7 +141,7 @@ def test_init_from_starts_a_new_run_from_another_runs_weights(tmp_path):
         + QUICK
         + TINY_MODEL["ebf"][1:]
     )
-    with pytest.raises(MocapFileError, match="do not fit"):
+    with pytest.raises(MocapFileError, match="trained with hidden=8, this run has hidden=12"):
         train(wider)
     other = compose_cfg(
         [f"runs_root={tmp_path}", "name=other", "model=ebd", "corruption=gaps", f"init_from={start}"]
@@ -150,6 +151,10 @@ def test_init_from_starts_a_new_run_from_another_runs_weights(tmp_path):
     with pytest.raises(MocapFileError, match="holds EBF weights, this run trains EBD"):
         train(other)
     assert not (tmp_path / "wider" / "checkpoints").exists() and not (tmp_path / "other" / "checkpoints").exists()
+    missing = compose_cfg([f"runs_root={tmp_path}", "name=missing", f"init_from={tmp_path / 'nope.ckpt'}"] + QUICK)
+    with pytest.raises(FileNotFoundError, match="nope.ckpt"):
+        train(missing)
+    assert not (tmp_path / "missing").exists()
 
 
 def test_mocapnet_train_runs_in_process_and_writes_under_the_cwd(tmp_path, monkeypatch, capsys):
