@@ -7,10 +7,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from mocapnet.adaptive_smooth import cv_gaussian
 from mocapnet.corrupt import corrupt_motion
-from mocapnet.fill import join_gaps, lerp_fill, spline_fill
+from mocapnet.fill import join_gaps, lerp_fill, runs, spline_fill
 from mocapnet.kinematics import wrap_deg
+from mocapnet.methods.knn_angles import fill_angles
+from mocapnet.methods.knn_database import SkeletonDatabase
 from mocapnet.methods.registry import build_method
+from mocapnet.motion import Motion
 
 METHODS = [
     "lerp",
@@ -83,3 +87,36 @@ def test_join_gaps_moves_only_runs_after_a_gap_that_hides_a_wrap():
     # a gap whose edges differ by less than WRAP_STEP is motion, not a wrap
     swing = np.concatenate([np.zeros(5), np.full(35, 200.0)])[:, None]
     np.testing.assert_array_equal(join_gaps(swing, mask)[1], 0.0)
+
+
+def test_knn_gives_the_same_fill_whatever_branch_the_run_after_a_gap_is_on(cmu):
+    """kNN joins a gap that hides a wrap before it searches (its features come from the filled base): the same
+    angles with the run after the gap one branch up give the same fill, observed samples kept bit for bit."""
+    parts = [Motion(cmu.skeleton, cmu.channels[a : a + 400], cmu.fps, f"part{a}") for a in (0, 900, 1800)]
+    truth = parts[1]
+    db = SkeletonDatabase.from_motions(parts)
+    noisy, mask = corrupt_motion(truth, "segment-gap:left-arm:1", np.random.default_rng(0))
+    cols = np.flatnonzero(mask.any(axis=0))
+    _, end = runs(mask[:, cols[0]])[0]
+    moved = noisy.copy()
+    moved[end:, cols] += 360.0
+    plain = fill_angles(truth.with_channels(noisy), mask, db)[0]
+    joined = fill_angles(truth.with_channels(moved), mask, db)[0]
+    scored = truth.skeleton.scored_mask
+    np.testing.assert_allclose(wrap_deg(joined - plain)[:, scored], 0.0, atol=1e-6)
+    np.testing.assert_array_equal(joined[~mask], moved[~mask])
+
+
+def test_gaussian_cv_does_not_unwrap_inside_an_observed_run(cmu):
+    """A step over 180° between observed frames is motion or noise, not a wrap (``read_bvh`` unwrapped the file):
+    ``gaussian-cv`` smooths the channel as it is, with no gap to join."""
+    motion = cmu.with_channels(cmu.channels[:600])
+    noisy, mask = corrupt_motion(motion, "angular-0.5", np.random.default_rng(4))
+    scored = np.flatnonzero(motion.skeleton.scored_mask)
+    busy = scored[np.argmax(noisy[:, scored].std(axis=0))]
+    jumpy = noisy.copy()
+    jumpy[300:, busy] += 200.0  # a step of about 200° between frames 299 and 300
+    out = build_method("gaussian-cv").clean(motion.with_channels(jumpy), mask)
+    np.testing.assert_array_equal(out[:, scored], cv_gaussian(jumpy[:, scored])[0])
+    unwrapped = cv_gaussian(jumpy[:, [busy]], period=360.0)[0][:, 0]
+    assert np.abs(wrap_deg(out[:, busy] - unwrapped)).max() > 1.0  # unwrapping there would change the result

@@ -33,7 +33,7 @@ def filled_joined(noisy: Motion, mask: np.ndarray) -> tuple[np.ndarray, np.ndarr
     other channels) that put each sample back on the file's branch: smooth the first, then add the second."""
     rot = noisy.skeleton.rotation_mask
     offsets = np.zeros(noisy.channels.shape)
-    if not mask[:, rot].any():  # no gap: nothing to join or fill (no extra work)
+    if not mask.any():  # no gap: nothing to join or fill (no extra work)
         return noisy.channels.astype(np.float64, copy=True), offsets
     joined = noisy.channels.astype(np.float64, copy=True)
     joined[:, rot], offsets[:, rot] = join_gaps(noisy.channels[:, rot], mask[:, rot], ANGLE_PERIOD)

@@ -60,7 +60,7 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from mocapnet.fill import lerp_fill_angles, runs
+from mocapnet.fill import join_gaps, lerp_fill, runs
 from mocapnet.kinematics import (
     inverse_kinematics,
     joint_positions,
@@ -335,16 +335,36 @@ def fill_angles(
     searcher: Searcher | None = None,
 ) -> tuple[np.ndarray, FillStats]:
     """Fill the masked channels of ``motion.channels [T, C]`` (degrees; ``mask [T, C]`` True = missing)
-    from ``db`` (module docstring). Returns channels ``[T, C]`` (observed samples unchanged) and stats.
+    from ``db`` (module docstring). Returns channels ``[T, C]`` (observed samples unchanged, bit for bit) and
+    stats. A gap that hides a wrap is joined first (``fill.join_gaps``, the rotation channels): the search and
+    the fill see one continuous curve, and each sample goes back on the file's branch.
 
     Raises ValueError naming the motion when its skeleton does not match the database's."""
+    rot = motion.skeleton.rotation_mask
+    if not mask[:, rot].any():
+        return _fill_joined(motion, mask, db, settings, exclude, searcher)
+    joined, offsets = motion.channels.astype(np.float64, copy=True), np.zeros(motion.channels.shape)
+    joined[:, rot], offsets[:, rot] = join_gaps(motion.channels[:, rot], mask[:, rot])
+    out, stats = _fill_joined(motion.with_channels(joined), mask, db, settings, exclude, searcher)
+    return np.where(mask, out + offsets, motion.channels), stats
+
+
+def _fill_joined(
+    motion: Motion,
+    mask: np.ndarray,
+    db: SkeletonDatabase,
+    settings: WindowSettings | None,
+    exclude: Iterable[str],
+    searcher: Searcher | None,
+) -> tuple[np.ndarray, FillStats]:
+    """``fill_angles`` on channels whose gaps hide no wrap."""
     t_start = time.process_time()
     settings = settings or WindowSettings(**ANGLE_DEFAULTS)  # validated by WindowSettings.__post_init__
     sk = motion.skeleton
     db.check(sk, motion.name)
     searcher = searcher or Searcher(db.points, db.clip, db.describe())
     stats = FillStats()
-    base = lerp_fill_angles(motion.channels, mask, sk.rotation_mask)
+    base = lerp_fill(motion.channels, mask)
     out = base.copy()
     scored_cols = np.flatnonzero(sk.scored_mask)
     smask = mask[:, scored_cols]

@@ -95,8 +95,11 @@ def resume_path(ckpt_path: str | None, ckpt_dir: Path, averaged: bool = False) -
     return str(path)
 
 
-#: Hyper-parameters a warm restart may change: how to train, not what the weights compute.
-_RETUNABLE = frozenset({"lr", "weight_decay", "lr_patience", "lr_schedule", "dropout"})
+#: Hyper-parameters a warm restart may change: how to train (or start: ``sigma_init``, overwritten by the loaded
+#: weights), and the inference-only settings a shipped checkpoint carries (``change_limit``, ``gap_blend``).
+_RETUNABLE = frozenset(
+    {"lr", "weight_decay", "lr_patience", "lr_schedule", "dropout", "sigma_init", "change_limit", "gap_blend"}
+)
 
 
 def initial_weights(model: CleanerModule, path: str | Path) -> None:

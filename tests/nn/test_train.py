@@ -122,8 +122,9 @@ def test_last_checkpoint_is_the_latest_epoch_even_when_validation_stops_improvin
 
 def test_init_from_starts_a_new_run_from_another_runs_weights(tmp_path):
     """A warm restart with lr=0 (another learning rate: allowed) must end with exactly the weights it started
-    from (fresh optimizer and schedule, same tensors); weights of another size or network, or a missing file,
-    are refused naming the file before any data is set up."""
+    from (fresh optimizer and schedule, same tensors), also from a checkpoint carrying an inference setting
+    (``change_limit``, as the shipped ones do); weights of another size or network are refused naming the key or
+    class, a missing file before any data is set up."""
     source = _final_state(tmp_path, "source", 1)["state_dict"]
     start = tmp_path / "source" / "checkpoints" / "last.ckpt"
     cfg = compose_cfg(
@@ -136,6 +137,16 @@ def test_init_from_starts_a_new_run_from_another_runs_weights(tmp_path):
     assert warm["global_step"] == 2  # a new run: its own steps, not the source's continued
     for key, value in source.items():
         torch.testing.assert_close(warm["state_dict"][key], value, rtol=0, atol=0)
+    shipped_like = read_checkpoint(start)
+    shipped_like["hyper_parameters"]["change_limit"] = 2.5  # set at export for inference only
+    torch.save(shipped_like, tmp_path / "shipped_like.ckpt")
+    again = compose_cfg(
+        [f"runs_root={tmp_path}", "name=again", "trainer.max_epochs=1", "model.lr=0.0"]
+        + [f"init_from={tmp_path / 'shipped_like.ckpt'}"]
+        + QUICK
+        + TINY_MODEL["ebf"]
+    )
+    train(again)
     wider = compose_cfg(
         [f"runs_root={tmp_path}", "name=wider", "trainer.max_epochs=1", f"init_from={start}", "model.hidden=12"]
         + QUICK
