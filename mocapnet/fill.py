@@ -85,6 +85,22 @@ def join_gaps(
     return joined, offsets
 
 
+def join_columns(channels: np.ndarray, mask: np.ndarray, columns: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+    """``join_gaps`` on the angle ``columns`` (bool ``[C]`` or indices) of ``channels [T, C]`` only: ``(joined
+    [T, C], offsets [T, C])`` (offsets 0 outside ``columns``; add them back to what is computed from the joined
+    channels), or ``(channels, None)`` when no gap there hides a wrap (nothing to copy or add)."""
+    if not mask[:, columns].any():
+        return channels, None
+    joined_cols, offsets_cols = join_gaps(channels[:, columns], mask[:, columns])
+    if not offsets_cols.any():
+        return channels, None
+    joined = np.array(channels, dtype=np.float64, copy=True)
+    joined[:, columns] = joined_cols
+    offsets = np.zeros(joined.shape)
+    offsets[:, columns] = offsets_cols
+    return joined, offsets
+
+
 def lerp_fill(channels: np.ndarray, mask: np.ndarray, period: float | None = None) -> np.ndarray:
     """Linear interpolation over the masked samples of ``channels [T, C]`` (mask True = missing).
 

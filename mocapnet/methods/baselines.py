@@ -15,7 +15,7 @@ import numpy as np
 
 from mocapnet.adaptive_smooth import cv_gaussian, cv_gaussian_runs
 from mocapnet.corrupt import corrupt_motion, seed_for
-from mocapnet.fill import gaussian_smooth, join_gaps, lerp_fill, mask_groups, spline_fill
+from mocapnet.fill import gaussian_smooth, join_columns, join_gaps, lerp_fill, mask_groups, spline_fill
 from mocapnet.methods.registry import MethodContext, register
 from mocapnet.motion import Markers, Motion
 from mocapnet.selfcheck import limit_change
@@ -31,13 +31,9 @@ def filled_joined(noisy: Motion, mask: np.ndarray) -> tuple[np.ndarray, np.ndarr
     """The clip's channels ``[T, C]`` with every gap that hides a wrap joined in the rotation channels
     (``fill.join_gaps``) and the gaps filled linearly, and the offsets ``[T, C]`` (multiples of 360; 0 in the
     other channels) that put each sample back on the file's branch: smooth the first, then add the second."""
-    rot = noisy.skeleton.rotation_mask
-    offsets = np.zeros(noisy.channels.shape)
-    if not mask.any():  # no gap: nothing to join or fill (no extra work)
-        return noisy.channels.astype(np.float64, copy=True), offsets
-    joined = noisy.channels.astype(np.float64, copy=True)
-    joined[:, rot], offsets[:, rot] = join_gaps(noisy.channels[:, rot], mask[:, rot], ANGLE_PERIOD)
-    return lerp_fill(joined, mask), offsets
+    joined, offsets = join_columns(noisy.channels, mask, noisy.skeleton.rotation_mask)
+    filled = lerp_fill(joined, mask) if mask.any() else joined.astype(np.float64, copy=True)
+    return filled, np.zeros(filled.shape) if offsets is None else offsets
 
 
 def _scored_only(noisy: Motion, result: np.ndarray) -> np.ndarray:

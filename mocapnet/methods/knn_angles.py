@@ -60,7 +60,7 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from mocapnet.fill import join_gaps, lerp_fill, runs
+from mocapnet.fill import join_columns, lerp_fill, runs
 from mocapnet.kinematics import (
     inverse_kinematics,
     joint_positions,
@@ -340,11 +340,9 @@ def fill_angles(
     the fill see one continuous curve, and each sample goes back on the file's branch.
 
     Raises ValueError naming the motion when its skeleton does not match the database's."""
-    rot = motion.skeleton.rotation_mask
-    if not mask[:, rot].any():
+    joined, offsets = join_columns(motion.channels, mask, motion.skeleton.rotation_mask)
+    if offsets is None:
         return _fill_joined(motion, mask, db, settings, exclude, searcher)
-    joined, offsets = motion.channels.astype(np.float64, copy=True), np.zeros(motion.channels.shape)
-    joined[:, rot], offsets[:, rot] = join_gaps(motion.channels[:, rot], mask[:, rot])
     out, stats = _fill_joined(motion.with_channels(joined), mask, db, settings, exclude, searcher)
     return np.where(mask, out + offsets, motion.channels), stats
 

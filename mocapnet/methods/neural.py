@@ -41,7 +41,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mocapnet.fill import lerp_fill
+from mocapnet.fill import join_columns, lerp_fill
 from mocapnet.kinematics import wrap_near
 from mocapnet.methods.registry import MethodContext, build_method, register
 from mocapnet.motion import Motion, Skeleton
@@ -349,7 +349,7 @@ for _name, _what in _WHAT.items():
 @register("ebd+ebf", "angles", help=_HELP_PAIR.format(what="EBD fills gaps, then EBF denoises"))
 def _ebd_ebf(context: MethodContext, checkpoints: Sequence[str] | str = (), mode: str = "sequence"):
     from mocapnet.nn.features import scored_index
-    from mocapnet.nn.infer import clean_channels, join_scored
+    from mocapnet.nn.infer import clean_channels
 
     checkpoints = _paths(checkpoints)
     if len(checkpoints) not in (0, 2):
@@ -364,12 +364,12 @@ def _ebd_ebf(context: MethodContext, checkpoints: Sequence[str] | str = (), mode
         # A gap that hides a wrap is joined once, here: EBD's output on the file's branches would step by 360° at
         # the gap's end, inside what EBF takes for one observed run.
         idx = scored_index(noisy.skeleton)
-        joined, offsets = join_scored(noisy.channels, mask, idx)
+        joined, offsets = join_columns(noisy.channels, mask, idx)
         filled = clean_channels(ebd(noisy), joined, mask, noisy.skeleton, noisy.fps, mode, gap_blend=None)
         no_gaps = np.zeros_like(mask)
         out = clean_channels(ebf(noisy), filled, no_gaps, noisy.skeleton, noisy.fps, mode)
         if offsets is not None:
-            out[:, idx] += offsets
+            out[:, idx] += offsets[:, idx]
         return out
 
     return clean

@@ -19,7 +19,7 @@ from os import PathLike
 import numpy as np
 import torch
 
-from mocapnet.fill import join_gaps, lerp_fill
+from mocapnet.fill import join_columns, lerp_fill
 from mocapnet.io.atomic import MocapFileError
 from mocapnet.motion import Skeleton
 from mocapnet.nn.base import NORM_KEYS, CleanerModule, clip_statistics, uses_clip_statistics
@@ -162,7 +162,7 @@ def clean_channels(
     with stand-in gaps); ``"checkpoint"``: the setting stored with the network (``EBD.blend``); None keeps the
     network's fill as it comes. ``change_limit``: EBF's
     self-check factor (``limit_change``; None: the checkpoint's ``change_limit`` hyper-parameter, 0: none).
-    A gap that hides a wrap (its edges differ by more than ``fill.WRAP_STEP``) is joined first (``join_scored``):
+    A gap that hides a wrap (its edges differ by more than ``fill.WRAP_STEP``) is joined first (``join_columns``):
     the network and its interpolations see one continuous curve, and every sample comes back on the file's branch
     (observed samples an EBD keeps, bit for bit).
     """
@@ -172,7 +172,7 @@ def clean_channels(
         raise ValueError(f"gap_blend must be a GapBlend, 'checkpoint' or None, got {gap_blend!r}")
     idx = scored_index(skeleton)
     given = channels
-    channels, offsets = join_scored(channels, mask, idx)
+    channels, offsets = join_columns(channels, mask, idx)
     result, out = _network_output(model, channels, mask, idx, skeleton, fps, mode)
     if isinstance(model, EBD):
         scored = result[:, idx]
@@ -195,25 +195,10 @@ def clean_channels(
         cleaned = out.numpy().astype(np.float64)
         result[:, idx] = limit_change(result[:, idx], cleaned, limit) if limit > 0 else cleaned
     if offsets is not None:
-        result[:, idx] += offsets
+        result[:, idx] += offsets[:, idx]
         if isinstance(model, EBD):
             result[:, idx] = np.where(mask[:, idx], result[:, idx], given[:, idx])
     return result
-
-
-def join_scored(channels: np.ndarray, mask: np.ndarray, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
-    """``channels [T, C]`` (degrees, NaN where ``mask [T, C]``) with every gap that hides a wrap joined in the
-    scored columns ``idx`` (``fill.join_gaps``: the observed runs after it moved by multiples of 360), and the
-    offsets ``[T, len(idx)]`` that put every sample back on the file's branch; ``(channels, None)`` when no gap
-    hides a wrap."""
-    if not mask[:, idx].any():  # no gap, nothing to join (the offline clean's usual case: no extra work)
-        return channels, None
-    joined, offsets = join_gaps(channels[:, idx], mask[:, idx])
-    if not offsets.any():
-        return channels, None
-    out = np.array(channels, dtype=np.float64, copy=True)
-    out[:, idx] = joined
-    return out, offsets
 
 
 def _network_output(
