@@ -127,10 +127,9 @@ def lerp_fill(channels: np.ndarray, mask: np.ndarray, period: float | None = Non
 def lerp_fill_angles(channels: np.ndarray, mask: np.ndarray, angles: np.ndarray) -> np.ndarray:
     """``lerp_fill`` of ``channels [T, C]``, the columns where ``angles [C]`` is True (degrees) with
     ``period=360`` (a gap that hides a wrap bridged the shorter way round), the others plainly."""
-    out = np.array(channels, dtype=np.float64, copy=True)
-    out[:, ~angles] = lerp_fill(channels[:, ~angles], mask[:, ~angles])
-    out[:, angles] = lerp_fill(channels[:, angles], mask[:, angles], 360.0)
-    return out
+    joined, offsets = join_columns(channels, mask, angles)
+    filled = lerp_fill(joined, mask)
+    return filled if offsets is None else np.where(mask, filled + offsets, channels)
 
 
 def gap_fill(

@@ -102,11 +102,10 @@ _RETUNABLE = frozenset(
 )
 
 
-def initial_weights(model: CleanerModule, path: str | Path) -> None:
-    """Load the weights (normaliser included) of the checkpoint at ``path`` into ``model``, read as data
-    (``checkpoints.read_checkpoint``). MocapFileError naming the file when it holds no weights, was trained for
-    another network class or skeleton, or its tensors do not fit ``model`` (other sizes or layers)."""
-    ckpt = read_checkpoint(path)
+def initial_weights(model: CleanerModule, ckpt: dict, path: str | Path) -> None:
+    """Load the weights (normaliser included) of checkpoint ``ckpt`` (read as data from ``path`` by
+    ``checkpoints.read_checkpoint``) into ``model``. MocapFileError naming the file when it holds no weights, was
+    trained for another network class or skeleton, or its tensors do not fit ``model`` (other sizes or layers)."""
     state = ckpt.get("state_dict")
     if not isinstance(state, dict):
         raise MocapFileError(f"{path}: holds no state_dict to start from")
@@ -171,15 +170,15 @@ def train(cfg: DictConfig) -> Path:
     run_dir = Path(cfg.run_dir)
     ckpt_dir = run_dir / "checkpoints"
     ckpt_path = resume_path(cfg.get("ckpt_path"), ckpt_dir, averaged=bool(averaging))
-    if ckpt_path is None and cfg.get("init_from"):
-        read_checkpoint(cfg.init_from)  # a missing or unreadable file fails now, before the data is set up
+    # a missing or unreadable file fails now, before the data is set up; the weights are loaded after
+    start = read_checkpoint(cfg.init_from) if ckpt_path is None and cfg.get("init_from") else None
     configure_torch(cfg.get("threads"))
     L.seed_everything(cfg.seed, workers=True)
     run_dir.mkdir(parents=True, exist_ok=True)
     (run_dir / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
     data, model = build(cfg)
-    if ckpt_path is None and cfg.get("init_from"):
-        initial_weights(model, cfg.init_from)
+    if start is not None:
+        initial_weights(model, start, cfg.init_from)
     best = ModelCheckpoint(dirpath=ckpt_dir, filename="best", monitor=model.val_metric, mode="min", save_top_k=1)
     # Lightning >= 2.6 writes ``save_last`` only when the monitored score improves, so a run resumed after a
     # plateau would lose every epoch since its best: the latest state is a checkpoint of its own, every epoch
