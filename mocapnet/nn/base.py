@@ -152,6 +152,11 @@ class CleanerModule(L.LightningModule, ABC):
             parts += [rad.sin(), rad.cos()]
         return torch.cat(parts, dim=-1)
 
+    @property
+    def loss_in_degrees(self) -> bool:
+        """Whether ``loss_terms`` gives squared degrees (then ``train/rms_deg`` is logged)."""
+        return True
+
     def loss_terms(self, batch: dict[str, torch.Tensor], pred: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Squared errors (degrees²) and the boolean selection ``[B, T, C]`` they are averaged over."""
         return (pred - batch["clean"]) ** 2, torch.ones_like(batch["mask"])
@@ -168,7 +173,8 @@ class CleanerModule(L.LightningModule, ABC):
         sq, sel = self.loss_terms(batch, self.predict_batch(batch))
         loss = (sq * sel).sum() / sel.sum().clamp(min=1)
         self.log("train/loss", loss, prog_bar=True, batch_size=batch["clean"].shape[0])
-        self.log("train/rms_deg", loss.detach().sqrt(), batch_size=batch["clean"].shape[0])
+        if self.loss_in_degrees:
+            self.log("train/rms_deg", loss.detach().sqrt(), batch_size=batch["clean"].shape[0])
         return loss
 
     def on_validation_epoch_start(self) -> None:

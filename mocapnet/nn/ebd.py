@@ -37,6 +37,13 @@ from mocapnet.kinematics import wrap_deg, wrap_near
 from mocapnet.nn.base import NORMS, CleanerModule, n_inputs
 from mocapnet.nn.layers import BLSTM, mlp, tapered
 
+#: Training losses of the EBD (``EBD.loss_terms``): every missing sample's squared error alike, or each relative
+#: to its gap's interpolation error.
+GAP_LOSSES = ("samples", "relative")
+#: Degrees added (squared) to a gap's interpolation error before a ``"relative"`` loss divides by it: a gap the
+#: interpolation fills almost exactly is not weighted without bound.
+GAP_LOSS_FLOOR_DEG = 1.0
+
 
 class EBD(CleanerModule):
     """Encoder-Bidirectional-Decoder gap filler for ``n_channels`` scored channels (degrees)."""
@@ -64,8 +71,11 @@ class EBD(CleanerModule):
         spline_max_s: float = 0.0,
         gap_blend: dict[str, Any] | None = None,
         norm: str = "corpus",
+        gap_loss: str = "samples",
     ) -> None:
         super().__init__(n_channels, lr, weight_decay, lr_patience)
+        if gap_loss not in GAP_LOSSES:
+            raise ValueError(f"gap_loss must be one of {GAP_LOSSES}, got {gap_loss!r}")
         if gap_blend is not None:
             as_blend(gap_blend)  # refuse unknown or malformed settings now, not at the first clip
         if norm not in NORMS:
@@ -123,9 +133,37 @@ class EBD(CleanerModule):
         codes = self.encoder(self.features(filled, mask, angvel, stats))
         return self.fill(filled, mask, self.decoder(self.blstm.windowed(codes, self.hparams.half)), stats["scale"])
 
+    @property
+    def loss_in_degrees(self) -> bool:
+        return self.hparams.get("gap_loss", "samples") == "samples"
+
     def loss_terms(self, batch: dict[str, torch.Tensor], pred: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """Squared error over the missing samples only."""
-        return (pred - batch["clean"]) ** 2, batch["mask"]
+        """Squared error over the missing samples only (``gap_loss="samples"``, degrees²); ``"relative"``: each
+        sample's divided by its gap's mean squared error of the interpolation (``batch["filled"]``) plus
+        ``GAP_LOSS_FLOOR_DEG``² (``gap_means``), so that a short gap, whose interpolation is nearly right, weighs
+        as much per sample as a long one instead of ~L⁴ times less."""
+        sq, mask = (pred - batch["clean"]) ** 2, batch["mask"]
+        if self.hparams.get("gap_loss", "samples") == "samples":
+            return sq, mask
+        with torch.no_grad():
+            base = gap_means((batch["filled"] - batch["clean"]) ** 2, mask)
+        return sq / (base + GAP_LOSS_FLOOR_DEG**2), mask
+
+
+def gap_means(values: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """Each sample of ``values [B, T, C]`` where ``mask [B, T, C]`` is True replaced by the mean over its gap (the
+    run of True along T it belongs to, per clip and channel); 0 elsewhere."""
+    b, t, c = mask.shape
+    before = torch.zeros_like(mask[:, :1])
+    starts = mask & ~torch.cat([before, mask[:, :-1]], dim=1)
+    gap = torch.cumsum(starts, dim=1)  # [B, T, C]: the gap's number (1, 2, ...) in its clip and channel
+    row = (torch.arange(b, device=mask.device)[:, None, None] * c + torch.arange(c, device=mask.device)) * (t + 1)
+    key = (row + gap)[mask]
+    sums = values.new_zeros(b * c * (t + 1)).index_add_(0, key, values[mask])
+    counts = values.new_zeros(b * c * (t + 1)).index_add_(0, key, torch.ones_like(values[mask]))
+    out = torch.zeros_like(values)
+    out[mask] = sums[key] / counts[key]
+    return out
 
 
 @dataclass(frozen=True)

@@ -357,3 +357,39 @@ def test_gate_end_option_shrinks_the_network_share_of_short_gaps(sample):
             build_method(bad)
     with pytest.raises(ValueError, match="gate_end 0.01 s must be after"):
         build_method("ebd:gate_end=0.01").clean(motion, mask)
+
+
+def test_gap_means_average_each_run_of_missing_samples_per_clip_and_channel():
+    import torch
+
+    from mocapnet.nn.ebd import gap_means
+
+    mask = torch.tensor([[0, 1, 1, 0, 1, 1, 1], [1, 1, 0, 0, 0, 1, 0]], dtype=torch.bool).T[None]  # [1, 7, 2]
+    values = torch.arange(14, dtype=torch.float64).reshape(1, 7, 2)
+    means = gap_means(torch.cat([values, values + 100]), torch.cat([mask, mask]))  # two clips, same gaps
+    expected = torch.tensor([[0, 3, 3, 0, 10, 10, 10], [2, 2, 0, 0, 0, 11, 0]], dtype=torch.float64).T
+    assert torch.equal(means[0], expected)
+    assert torch.equal(means[1], torch.where(mask[0], expected + 100, 0.0))
+
+
+def test_relative_gap_loss_weighs_each_gap_by_its_interpolation_error(tiny, sample):
+    import torch
+
+    from mocapnet.nn.ebd import GAP_LOSS_FLOOR_DEG
+
+    model = tiny("ebd", sample, gap_loss="relative")
+    assert not model.loss_in_degrees
+    mask = torch.zeros(1, 8, 2, dtype=torch.bool)
+    mask[0, 1:3, 0] = True  # short gap: the interpolation is 1 degree off
+    mask[0, 3:7, 1] = True  # long gap: 10 degrees off
+    clean = torch.zeros(1, 8, 2)
+    filled = torch.where(mask, torch.tensor([1.0, 10.0]), clean)
+    pred = torch.where(mask, torch.tensor([0.5, 5.0]), clean)  # both halve their gap's error
+    sq, sel = model.loss_terms({"clean": clean, "filled": filled, "mask": mask}, pred)
+    assert torch.equal(sel, mask)
+    short = 0.25 / (1.0 + GAP_LOSS_FLOOR_DEG**2)
+    long = 25.0 / (100.0 + GAP_LOSS_FLOOR_DEG**2)
+    assert torch.allclose(sq[mask], torch.tensor([short, short, long, long, long, long]))
+    with pytest.raises(ValueError, match="gap_loss"):
+        tiny("ebd", sample, gap_loss="per-gap")
+    assert tiny("ebd", sample).loss_in_degrees
