@@ -37,11 +37,11 @@ from mocapnet.kinematics import wrap_deg, wrap_near
 from mocapnet.nn.base import NORMS, CleanerModule, n_inputs
 from mocapnet.nn.layers import BLSTM, mlp, tapered
 
-#: Training losses of the EBD (``EBD.loss_terms``): every missing sample's squared error alike, or each relative
-#: to its gap's interpolation error.
-GAP_LOSSES = ("samples", "relative")
-#: Degrees added (squared) to a gap's interpolation error before a ``"relative"`` loss divides by it: a gap the
-#: interpolation fills almost exactly is not weighted without bound.
+#: Training losses of the EBD (``EBD.loss_terms``): every missing sample's squared error alike, or each divided by
+#: its gap's interpolation error, squared (``"relative"``) or RMS (``"rms"``, halfway between the two).
+GAP_LOSSES = ("samples", "relative", "rms")
+#: Degrees added to a gap's interpolation RMS error (squared for ``"relative"``) before the loss divides by it: a
+#: gap the interpolation fills almost exactly is not weighted without bound.
 GAP_LOSS_FLOOR_DEG = 1.0
 
 
@@ -141,12 +141,16 @@ class EBD(CleanerModule):
         """Squared error over the missing samples only (``gap_loss="samples"``, degrees²); ``"relative"``: each
         sample's divided by its gap's mean squared error of the interpolation (``batch["filled"]``) plus
         ``GAP_LOSS_FLOOR_DEG``² (``gap_means``), so that a short gap, whose interpolation is nearly right, weighs
-        as much per sample as a long one instead of ~L⁴ times less."""
+        as much per sample as a long one instead of ~L⁴ times less; ``"rms"``: divided by that error's square
+        root plus ``GAP_LOSS_FLOOR_DEG`` (degrees)."""
         sq, mask = (pred - batch["clean"]) ** 2, batch["mask"]
-        if self.hparams.get("gap_loss", "samples") == "samples":
+        kind = self.hparams.get("gap_loss", "samples")
+        if kind == "samples":
             return sq, mask
         with torch.no_grad():
             base = gap_means((batch["filled"] - batch["clean"]) ** 2, mask)
+        if kind == "rms":
+            return sq / (base.sqrt() + GAP_LOSS_FLOOR_DEG), mask
         return sq / (base + GAP_LOSS_FLOOR_DEG**2), mask
 
 

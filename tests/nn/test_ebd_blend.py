@@ -390,6 +390,10 @@ def test_relative_gap_loss_weighs_each_gap_by_its_interpolation_error(tiny, samp
     short = 0.25 / (1.0 + GAP_LOSS_FLOOR_DEG**2)
     long = 25.0 / (100.0 + GAP_LOSS_FLOOR_DEG**2)
     assert torch.allclose(sq[mask], torch.tensor([short, short, long, long, long, long]))
+    model.hparams.gap_loss = "rms"
+    sq, _ = model.loss_terms({"clean": clean, "filled": filled, "mask": mask}, pred)
+    short, long = 0.25 / (1.0 + GAP_LOSS_FLOOR_DEG), 25.0 / (10.0 + GAP_LOSS_FLOOR_DEG)
+    assert torch.allclose(sq[mask], torch.tensor([short, short, long, long, long, long]))
     with pytest.raises(ValueError, match="gap_loss"):
         tiny("ebd", sample, gap_loss="per-gap")
     assert tiny("ebd", sample).loss_in_degrees
