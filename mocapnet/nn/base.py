@@ -87,7 +87,7 @@ def input_features_numpy(
 
 class CleanerModule(L.LightningModule, ABC):
     """Base LightningModule. Subclasses set ``val_metric`` (the logged name), implement ``forward`` (sequence
-    mode), ``windowed`` and ``loss_terms``."""
+    mode), ``windowed`` and ``loss_terms`` / ``scored``."""
 
     val_metric = "val/angle_err_deg"
 
@@ -157,9 +157,13 @@ class CleanerModule(L.LightningModule, ABC):
         """Whether ``loss_terms`` gives squared degrees (then ``train/rms_deg`` is logged)."""
         return True
 
+    def scored(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
+        """The boolean selection ``[B, T, C]`` the loss and the validation error average over: every sample."""
+        return torch.ones_like(batch["mask"])
+
     def loss_terms(self, batch: dict[str, torch.Tensor], pred: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """Squared errors (degrees²) and the boolean selection ``[B, T, C]`` they are averaged over."""
-        return (pred - batch["clean"]) ** 2, torch.ones_like(batch["mask"])
+        """Squared errors (degrees²) and the boolean selection ``[B, T, C]`` they are averaged over (``scored``)."""
+        return (pred - batch["clean"]) ** 2, self.scored(batch)
 
     @abstractmethod
     def predict_batch(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
@@ -183,7 +187,7 @@ class CleanerModule(L.LightningModule, ABC):
     def validation_step(self, batch: dict[str, torch.Tensor], batch_idx: int) -> None:
         pred = self.predict_batch(batch)
         diff = wrap_deg(pred - batch["clean"])
-        _, sel = self.loss_terms(batch, pred)
+        sel = self.scored(batch)
         self._sse += float((diff**2 * sel).sum())
         self._count += int(sel.sum())
 

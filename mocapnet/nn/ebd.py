@@ -38,10 +38,10 @@ from mocapnet.nn.base import NORMS, CleanerModule, n_inputs
 from mocapnet.nn.layers import BLSTM, mlp, tapered
 
 #: Training losses of the EBD (``EBD.loss_terms``): every missing sample's squared error alike, or each divided by
-#: its gap's interpolation error, squared (``"relative"``) or RMS (``"rms"``, halfway between the two).
+#: its gap's interpolation error: its mean square (``"relative"``) or its RMS (``"rms"``, halfway between the two).
 GAP_LOSSES = ("samples", "relative", "rms")
-#: Degrees added to a gap's interpolation RMS error (squared for ``"relative"``) before the loss divides by it: a
-#: gap the interpolation fills almost exactly is not weighted without bound.
+#: ``"rms"`` divides by the gap's interpolation RMS error plus this many degrees, ``"relative"`` by its mean
+#: squared error plus this squared: a gap the interpolation fills almost exactly is not weighted without bound.
 GAP_LOSS_FLOOR_DEG = 1.0
 
 
@@ -133,6 +133,10 @@ class EBD(CleanerModule):
         codes = self.encoder(self.features(filled, mask, angvel, stats))
         return self.fill(filled, mask, self.decoder(self.blstm.windowed(codes, self.hparams.half)), stats["scale"])
 
+    def scored(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
+        """The missing samples only (``batch["mask"]``)."""
+        return batch["mask"]
+
     @property
     def loss_in_degrees(self) -> bool:
         return self.hparams.get("gap_loss", "samples") == "samples"
@@ -143,7 +147,7 @@ class EBD(CleanerModule):
         ``GAP_LOSS_FLOOR_DEG``² (``gap_means``), so that a short gap, whose interpolation is nearly right, weighs
         as much per sample as a long one instead of ~L⁴ times less; ``"rms"``: divided by that error's square
         root plus ``GAP_LOSS_FLOOR_DEG`` (degrees)."""
-        sq, mask = (pred - batch["clean"]) ** 2, batch["mask"]
+        sq, mask = (pred - batch["clean"]) ** 2, self.scored(batch)
         kind = self.hparams.get("gap_loss", "samples")
         if kind == "samples":
             return sq, mask

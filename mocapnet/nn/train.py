@@ -95,10 +95,12 @@ def resume_path(ckpt_path: str | None, ckpt_dir: Path, averaged: bool = False) -
     return str(path)
 
 
-#: Hyper-parameters a warm restart may change: how to train (or start: ``sigma_init``, overwritten by the loaded
-#: weights), and the inference-only settings a shipped checkpoint carries (``change_limit``, ``gap_blend``).
+#: Hyper-parameters a warm restart may change: how to train (the loss too: ``gap_loss``) or start (``sigma_init``,
+#: overwritten by the loaded weights), and the inference-only settings a shipped checkpoint carries
+#: (``change_limit``, ``gap_blend``).
 _RETUNABLE = frozenset(
     {"lr", "weight_decay", "lr_patience", "lr_schedule", "dropout", "sigma_init", "change_limit", "gap_blend"}
+    | {"gap_loss"}
 )
 
 

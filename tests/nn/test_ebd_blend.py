@@ -397,3 +397,36 @@ def test_relative_gap_loss_weighs_each_gap_by_its_interpolation_error(tiny, samp
     with pytest.raises(ValueError, match="gap_loss"):
         tiny("ebd", sample, gap_loss="per-gap")
     assert tiny("ebd", sample).loss_in_degrees
+
+
+@pytest.mark.parametrize(("before", "after"), [("samples", "rms"), ("rms", "samples"), (None, "relative")])
+def test_a_warm_restart_may_change_the_gap_loss(tiny, sample, before, after):
+    """``gap_loss`` is how to train, not what the weights mean: ``init_from`` takes a checkpoint trained with
+    another one (or none: checkpoints from before the option), weights bit for bit."""
+    import torch
+
+    from mocapnet.nn.train import initial_weights
+
+    source = tiny("ebd", sample, **({} if before is None else {"gap_loss": before}))
+    theirs = dict(source.hparams)
+    if before is None:
+        theirs.pop("gap_loss")
+    ckpt = {"state_dict": source.state_dict(), "mocapnet_model": "EBD", "hyper_parameters": theirs}
+    target = tiny("ebd", sample, gap_loss=after)
+    initial_weights(target, ckpt, "source.ckpt")
+    for key, value in source.state_dict().items():
+        assert torch.equal(target.state_dict()[key], value)
+
+
+def test_validation_error_stays_in_degrees_whatever_the_gap_loss(tiny, sample):
+    import torch
+
+    mask = torch.zeros(1, 8, 2, dtype=torch.bool)
+    mask[0, 2:5, 0] = True
+    batch = {"clean": torch.zeros(1, 8, 2), "filled": torch.where(mask, 4.0, 0.0), "mask": mask}
+    for kind in ("samples", "relative", "rms"):
+        model = tiny("ebd", sample, gap_loss=kind)
+        model.predict_batch = lambda b: torch.where(b["mask"], 3.0, 0.0)  # 3 degrees off on the 3 missing samples
+        model.on_validation_epoch_start()
+        model.validation_step(batch, 0)
+        assert model._sse == pytest.approx(27.0) and model._count == 3
