@@ -99,8 +99,17 @@ def resume_path(ckpt_path: str | None, ckpt_dir: Path, averaged: bool = False) -
 #: overwritten by the loaded weights), and the inference-only settings a shipped checkpoint carries
 #: (``change_limit``, ``gap_blend``).
 _RETUNABLE = frozenset(
-    {"lr", "weight_decay", "lr_patience", "lr_schedule", "dropout", "sigma_init", "change_limit", "gap_blend"}
-    | {"gap_loss"}
+    {
+        "lr",
+        "weight_decay",
+        "lr_patience",
+        "lr_schedule",
+        "dropout",
+        "gap_loss",
+        "sigma_init",
+        "change_limit",
+        "gap_blend",
+    }
 )
 
 
