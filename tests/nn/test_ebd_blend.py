@@ -6,10 +6,22 @@ import dataclasses
 
 import numpy as np
 import pytest
+import torch
 
 from mocapnet.corrupt import corrupt_motion
 from mocapnet.fill import lerp_fill, spline_fill
-from mocapnet.nn.ebd import GAP_BLEND, as_blend, blend_gaps, channel_speed, gap_list, rehearse, stand_in_gaps
+from mocapnet.nn.ebd import (
+    GAP_BLEND,
+    GAP_LOSS_FLOOR_DEG,
+    as_blend,
+    blend_gaps,
+    channel_speed,
+    gap_list,
+    gap_means,
+    rehearse,
+    stand_in_gaps,
+)
+from mocapnet.nn.train import initial_weights
 
 FPS = 30.0
 PURE_NETWORK = dataclasses.replace(GAP_BLEND, spline_max_s=0.0, gate_s=(0.0, 0.0), taper_s=0.0, speed_factor=np.inf)
@@ -360,10 +372,6 @@ def test_gate_end_option_shrinks_the_network_share_of_short_gaps(sample):
 
 
 def test_gap_means_average_each_run_of_missing_samples_per_clip_and_channel():
-    import torch
-
-    from mocapnet.nn.ebd import gap_means
-
     mask = torch.tensor([[0, 1, 1, 0, 1, 1, 1], [1, 1, 0, 0, 0, 1, 0]], dtype=torch.bool).T[None]  # [1, 7, 2]
     values = torch.arange(14, dtype=torch.float64).reshape(1, 7, 2)
     means = gap_means(torch.cat([values, values + 100]), torch.cat([mask, mask]))  # two clips, same gaps
@@ -373,10 +381,6 @@ def test_gap_means_average_each_run_of_missing_samples_per_clip_and_channel():
 
 
 def test_relative_gap_loss_weighs_each_gap_by_its_interpolation_error(tiny, sample):
-    import torch
-
-    from mocapnet.nn.ebd import GAP_LOSS_FLOOR_DEG
-
     model = tiny("ebd", sample, gap_loss="relative")
     assert not model.loss_in_degrees
     mask = torch.zeros(1, 8, 2, dtype=torch.bool)
@@ -403,10 +407,6 @@ def test_relative_gap_loss_weighs_each_gap_by_its_interpolation_error(tiny, samp
 def test_a_warm_restart_may_change_the_gap_loss(tiny, sample, before, after):
     """``gap_loss`` is how to train, not what the weights mean: ``init_from`` takes a checkpoint trained with
     another one (or none: checkpoints from before the option), weights bit for bit."""
-    import torch
-
-    from mocapnet.nn.train import initial_weights
-
     source = tiny("ebd", sample, **({} if before is None else {"gap_loss": before}))
     theirs = dict(source.hparams)
     if before is None:
@@ -419,8 +419,6 @@ def test_a_warm_restart_may_change_the_gap_loss(tiny, sample, before, after):
 
 
 def test_validation_error_stays_in_degrees_whatever_the_gap_loss(tiny, sample):
-    import torch
-
     mask = torch.zeros(1, 8, 2, dtype=torch.bool)
     mask[0, 2:5, 0] = True
     batch = {"clean": torch.zeros(1, 8, 2), "filled": torch.where(mask, 4.0, 0.0), "mask": mask}
