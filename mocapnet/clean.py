@@ -105,11 +105,14 @@ def clean_bvh_file(src: Path, out: Path, options: CleanOptions) -> CleanResult:
     """Denoise (and with a mask, fill) a BVH file with a joint-angle method and write the result. The default
     (``auto``, ``mocapnet.methods.auto_angles``): the networks shipped for the skeleton, else ``gaussian-cv``;
     the result's message and ``details["auto"]`` say which and why."""
+    from mocapnet.fill import unwrap_observed
     from mocapnet.io import read_bvh, write_bvh
     from mocapnet.methods.registry import build_method
 
-    motion = read_bvh(src)
-    mask = read_mask(options.mask, motion) if options.mask else np.zeros(motion.channels.shape, dtype=bool)
+    stored = read_bvh(src, unwrap=False)
+    mask = read_mask(options.mask, stored) if options.mask else np.zeros(stored.channels.shape, dtype=bool)
+    # rotations made continuous without reading the masked placeholders (a gap hides a wrap only in a wrapped column)
+    motion = stored.with_channels(unwrap_observed(stored.channels, mask, stored.skeleton.rotation_mask, copy=False))
     method, why = options.method, ""
     if method is None and options.model:
         method = "ebd+ebf" if mask.any() else "ebf"

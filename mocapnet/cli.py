@@ -262,7 +262,11 @@ def build_parser() -> argparse.ArgumentParser:
         "fill checked, implausible gaps left missing; gaussian-cv denoises instead)",
     )
     cl.add_argument("--model", help="checkpoint(s) for a neural method, comma-separated for ebd+ebf")
-    cl.add_argument("--mask", help="BVH: .npy bool mask of missing samples, [T, C] or [T, J]")
+    cl.add_argument(
+        "--mask",
+        help="BVH: .npy bool mask of missing samples, [T, C] or [T, J] (their stored values are never read; a "
+        "rotation stored within +-180 whose gap edges differ by more than 270 deg is joined the short way round)",
+    )
     cl.add_argument("--database", help="C3D: folder of clean C3D takes of the same marker set (knn)")
     cl.add_argument("--plot", help="C3D: write a PNG of the filled markers' trajectories, filled spans highlighted")
     cl.add_argument(

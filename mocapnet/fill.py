@@ -46,72 +46,67 @@ def gap_list(mask: np.ndarray) -> list[tuple[np.ndarray, int, int]]:
     return [(cols, a, b) for cols in mask_groups(mask).values() for a, b in runs(mask[:, cols[0]])]
 
 
-#: A step (degrees) across a gap above which the gap is taken to hide a wrap (e.g. 179 → -179), not motion: a
-#: gap's two edges are joined the shorter way round the circle when they differ by more than this.
+#: A step (degrees) across a gap above which the gap is taken to hide a wrap (e.g. 179 → -179), not motion, in a
+#: channel the file stores wrapped (``unwrap_observed``).
 WRAP_STEP = 270.0
 
 
-def join_gaps(
-    channels: np.ndarray, mask: np.ndarray, period: float = 360.0, wrap_step: float = WRAP_STEP
-) -> tuple[np.ndarray, np.ndarray]:
-    """Angles ``channels [T, C]`` (degrees; any value where ``mask [T, C]`` is True) with each run of observed
-    samples after a gap shifted by a multiple of ``period`` so it starts within ``period / 2`` of where the run
-    before the gap ended, wherever the two differ by more than ``wrap_step`` (a gap hides a wrap: a file stored
-    in [-180, 180) whose reader could not unwrap through the gap's placeholder values). Observed runs are
-    continuous by convention (``read_bvh`` unwraps along time) and are never unwrapped inside: steps between
-    neighbouring observed frames, however large, stay as they are. Returns ``(joined [T, C], offsets [T, C])``
-    with ``channels = joined + offsets`` on observed samples; a missing sample's offset is that of the observed
-    sample before it (after it, before the first), 0 in columns never observed."""
-    joined = np.array(channels, dtype=np.float64, copy=True)
-    offsets = np.zeros_like(joined)
-    t = np.arange(joined.shape[0])
-    for cols in mask_groups(mask).values():
-        seen = t[~mask[:, cols[0]]]
+def unwrap_observed(channels: np.ndarray, mask: np.ndarray, columns: np.ndarray, copy: bool = True) -> np.ndarray:
+    """Angles ``channels [T, C]`` as a file stores them (degrees; any value where ``mask [T, C]`` is True) made
+    continuous along time in the ``columns`` (bool ``[C]`` or indices) without reading the masked samples, whose
+    placeholder values would break the chain. Between neighbouring observed frames a step of more than 180° is
+    a wrap, as ``np.unwrap`` and ``read_bvh`` take it. Across a gap, where the file cannot say how far a joint turned:
+
+    - a column whose observed values all lie within ±180° (the file may wrap it) is joined the shorter
+      way round when the gap's edges differ by more than ``WRAP_STEP`` (179 → -179 is a 2° turn);
+    - a column with an observed value beyond ±180° is stored continuously, so its edges say how far it
+      turned (0 → 354 across a gap is a turn of 354°) and are kept.
+
+    Returns float64 channels (``copy=False``: ``channels`` itself when it is float64, changed in place); masked
+    samples move with the observed sample before them (after them, before the first). A column without a masked
+    sample gets ``np.unwrap(period=360)``, bit for bit the unwrap ``read_bvh`` does."""
+    out = np.array(channels, dtype=np.float64, copy=True) if copy else np.asarray(channels, dtype=np.float64)
+    columns = np.asarray(columns)
+    cols = np.flatnonzero(columns) if columns.dtype == bool else columns.astype(np.intp)
+    if out.shape[0] < 2 or not cols.size:
+        return out
+    gapped = mask[:, cols].any(axis=0)
+    whole = cols[~gapped]  # no gap: read_bvh's unwrap, on the columns where a step over 180° is possible
+    whole = whole[out[:, whole].max(axis=0) - out[:, whole].min(axis=0) > 180.0]
+    if whole.size:
+        whole = whole[np.abs(np.diff(out[:, whole], axis=0)).max(axis=0) > 180.0]
+    if whole.size:
+        out[:, whole] = np.unwrap(out[:, whole], period=360.0, axis=0)
+    t = np.arange(out.shape[0])
+    for c in cols[gapped]:
+        seen = t[~mask[:, c]]
         if seen.size < 2:
             continue
-        across = np.flatnonzero(np.diff(seen) > 1)  # observed neighbours with a gap between them
-        if not across.size:
+        values = out[seen, c]
+        step = np.diff(values)
+        across = np.diff(seen) > 1
+        wrapped_step = np.mod(step + 180.0, 360.0) - 180.0  # np.unwrap's rule, ties included
+        wrapped_step[(wrapped_step == -180.0) & (step > 0)] = 180.0
+        turns = np.round((step - wrapped_step) / 360.0)
+        in_run = ~across & (np.abs(step) >= 180.0)
+        wrapped = np.abs(values).max() <= 180.0
+        joined = across & (np.abs(step) > WRAP_STEP) if wrapped else np.zeros_like(across)
+        fix = np.where(in_run | joined, turns, 0.0)
+        if not fix.any():
             continue
-        step = joined[seen[across + 1]][:, cols] - joined[seen[across]][:, cols]  # [gaps, cols]
-        turns = np.where(np.abs(step) > wrap_step, np.round(step / period), 0.0)
-        if not turns.any():
-            continue
-        shift = np.zeros((seen.size, cols.size))
-        shift[across + 1] = turns * period
-        run_offset = np.cumsum(shift, axis=0)  # per observed sample, how far its run moves
+        shift = np.concatenate([[0.0], np.cumsum(fix)]) * 360.0  # per observed sample
         holder = np.clip(np.searchsorted(seen, t, side="right") - 1, 0, None)  # the observed sample at or before
-        offsets[:, cols] = run_offset[holder]
-        joined[:, cols] -= offsets[:, cols]
-    return joined, offsets
+        out[:, c] -= shift[holder]
+    return out
 
 
-def join_columns(channels: np.ndarray, mask: np.ndarray, columns: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
-    """``join_gaps`` on the angle ``columns`` (bool ``[C]`` or indices) of ``channels [T, C]`` only: ``(joined
-    [T, C], offsets [T, C])`` (offsets 0 outside ``columns``; add them back to what is computed from the joined
-    channels), or ``(channels, None)`` when no gap there hides a wrap (nothing to copy or add)."""
-    if not mask[:, columns].any():
-        return channels, None
-    joined_cols, offsets_cols = join_gaps(channels[:, columns], mask[:, columns])
-    if not offsets_cols.any():
-        return channels, None
-    joined = np.array(channels, dtype=np.float64, copy=True)
-    joined[:, columns] = joined_cols
-    offsets = np.zeros(joined.shape)
-    offsets[:, columns] = offsets_cols
-    return joined, offsets
-
-
-def lerp_fill(channels: np.ndarray, mask: np.ndarray, period: float | None = None) -> np.ndarray:
+def lerp_fill(channels: np.ndarray, mask: np.ndarray) -> np.ndarray:
     """Linear interpolation over the masked samples of ``channels [T, C]`` (mask True = missing).
 
     Missing samples before the first / after the last observed one take the nearest observed value.
-    Columns with no observed sample are left as they are. ``period`` (360 for angles in degrees): a gap whose
-    edges differ by more than ``WRAP_STEP`` is bridged the shorter way round the circle (170 to -170 through 180,
-    not through 0; ``join_gaps``), each filled sample on the branch of the observed sample before its gap.
+    Columns with no observed sample are left as they are. Angles are bridged as they are given: make them
+    continuous first (``unwrap_observed``, as ``mocapnet clean`` does with a mask).
     """
-    if period is not None:
-        joined, offsets = join_gaps(channels, mask, period)
-        return np.where(mask, lerp_fill(joined, mask) + offsets, channels)  # observed samples bit for bit
     out = np.array(channels, dtype=np.float64, copy=True)
     t = np.arange(out.shape[0])
     for cols in mask_groups(mask).values():
@@ -122,14 +117,6 @@ def lerp_fill(channels: np.ndarray, mask: np.ndarray, period: float | None = Non
         for c in cols:
             out[miss, c] = np.interp(gaps, seen, out[~miss, c])
     return out
-
-
-def lerp_fill_angles(channels: np.ndarray, mask: np.ndarray, angles: np.ndarray) -> np.ndarray:
-    """``lerp_fill`` of ``channels [T, C]``, the columns where ``angles [C]`` is True (degrees) with
-    ``period=360`` (a gap that hides a wrap bridged the shorter way round), the others plainly."""
-    joined, offsets = join_columns(channels, mask, angles)
-    filled = lerp_fill(joined, mask)
-    return filled if offsets is None else np.where(mask, filled + offsets, channels)
 
 
 def gap_fill(
@@ -143,7 +130,7 @@ def gap_fill(
     run when ``spline_max < 1``) take ``lerp_fill``'s. The starting point of EBD's fill and of its blend
     (``mocapnet.nn.ebd``): short gaps are best bridged by a cubic, long ones by a line. ``interpolated``:
     ``(lerp_fill, spline_fill)`` of ``channels`` when the caller has them, else computed here (the spline only
-    on columns with a short gap). Angles with a gap that may hide a wrap: join them first (``join_gaps``)."""
+    on columns with a short gap)."""
     out = lerp_fill(channels, mask) if interpolated is None else np.array(interpolated[0], dtype=np.float64)
     if spline_max < 1:
         return out
@@ -158,13 +145,10 @@ def gap_fill(
     return out
 
 
-def spline_fill(channels: np.ndarray, mask: np.ndarray, period: float | None = None) -> np.ndarray:
+def spline_fill(channels: np.ndarray, mask: np.ndarray) -> np.ndarray:
     """Cubic-spline interpolation (scipy ``CubicSpline``, not-a-knot) over masked samples of ``[T, C]``;
-    falls back to linear where fewer than 4 samples are observed, and holds values beyond the ends.
-    ``period`` as in ``lerp_fill``."""
-    if period is not None:
-        joined, offsets = join_gaps(channels, mask, period)
-        return np.where(mask, spline_fill(joined, mask) + offsets, channels)
+    falls back to linear where fewer than 4 samples are observed, and holds values beyond the ends. Angles as
+    in ``lerp_fill``."""
     out = np.array(channels, dtype=np.float64, copy=True)
     t = np.arange(out.shape[0])
     for cols in mask_groups(mask).values():

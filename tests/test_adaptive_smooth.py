@@ -119,6 +119,7 @@ def test_bad_arguments_and_unusable_channels():
 
 def test_gaps_across_the_wrap_are_bridged_the_short_way():
     from mocapnet.evaluate.bvh_bench import synthetic
+    from mocapnet.fill import unwrap_observed
     from mocapnet.methods.registry import build_method
 
     base = synthetic(4, chain=True)
@@ -128,8 +129,9 @@ def test_gaps_across_the_wrap_are_bridged_the_short_way():
     wrapped = (truth + 180.0) % 360.0 - 180.0
     mask = np.zeros_like(truth, dtype=bool)
     mask[140:160, scored[0]] = True
-    motion = type(base)(base.skeleton, np.where(mask, np.nan, wrapped), base.fps, "turn")
-    out = build_method("gaussian-cv").clean(motion, mask)
+    stored = np.where(mask, np.nan, wrapped)  # as a file wraps it; ``mocapnet clean`` unwraps it with the mask
+    given = unwrap_observed(stored, mask, base.skeleton.rotation_mask)
+    out = build_method("gaussian-cv").clean(type(base)(base.skeleton, given, base.fps, "turn"), mask)
     error = (out[:, scored[0]] - truth[:, scored[0]] + 180.0) % 360.0 - 180.0
     assert np.abs(error).max() < 0.01  # a straight turn, bridged through 180 (not through 0: 170 degrees off)
 

@@ -1,6 +1,7 @@
-"""A gap can hide a wrap: a BVH that stores a turning root in [-180, 180) is unwrapped along time when read, but
-not through a gap whose placeholder samples break the chain. Every angle method joins such a gap the shorter way
-round the circle (``fill.join_gaps``), so it gives the same angles whichever branch the runs after a gap are on."""
+"""Angles across a gap. A file that wraps its rotations at ±180° is made continuous when read, but not through a
+gap, whose placeholder values break the chain; a file that stores them continuously says across a gap how far a
+joint turned. ``fill.unwrap_observed`` tells the two apart per column, and ``mocapnet clean`` runs it before any
+method; the methods themselves take the angles they are given as continuous."""
 
 from __future__ import annotations
 
@@ -8,103 +9,103 @@ import numpy as np
 import pytest
 
 from mocapnet.adaptive_smooth import cv_gaussian
+from mocapnet.clean import CleanOptions, clean_bvh_file
 from mocapnet.corrupt import corrupt_motion
-from mocapnet.fill import join_gaps, lerp_fill, runs, spline_fill
+from mocapnet.fill import WRAP_STEP, lerp_fill, unwrap_observed
+from mocapnet.io import read_bvh, write_bvh
 from mocapnet.kinematics import wrap_deg
-from mocapnet.methods.knn_angles import fill_angles
-from mocapnet.methods.knn_database import SkeletonDatabase
 from mocapnet.methods.registry import build_method
-from mocapnet.motion import Motion
 
-METHODS = [
-    "lerp",
-    "spline",
-    "gaussian-58ms",
-    "gaussian-125ms",
-    "gaussian-58ms+check",
-    "gaussian-cv",
-    "ebf",
-    "ebd",
-    "ebd+ebf",
-]
+
+def test_unwrap_observed_without_gaps_is_the_readers_unwrap():
+    stored = wrap_deg(np.cumsum(np.random.default_rng(0).normal(0.0, 40.0, (500, 6)), axis=0))
+    rotation = np.array([True, True, False, True, True, True])
+    out = unwrap_observed(stored, np.zeros(stored.shape, dtype=bool), rotation)
+    np.testing.assert_array_equal(out[:, rotation], np.unwrap(stored[:, rotation], period=360.0, axis=0))
+    np.testing.assert_array_equal(out[:, ~rotation], stored[:, ~rotation])
+    assert np.abs(np.diff(out[:, rotation], axis=0)).max() <= 180.0
+
+
+def test_unwrap_observed_joins_a_wrapped_column_and_keeps_a_continuous_one():
+    t = np.arange(60, dtype=np.float64)
+    mask = np.zeros((60, 1), dtype=bool)
+    mask[5:15] = True
+    # stored wrapped (160 ... 278 kept within ±180), placeholders 0 in the gap: joined the short way
+    truth = 160.0 + 2.0 * t
+    stored = np.where(mask, 0.0, wrap_deg(truth)[:, None])
+    out = unwrap_observed(stored, mask, [0])
+    np.testing.assert_allclose(out[~mask[:, 0], 0], truth[~mask[:, 0]])
+    np.testing.assert_allclose(lerp_fill(out, mask)[5:15, 0], truth[5:15])  # 170 ... 188, through 180
+    assert np.abs(wrap_deg(lerp_fill(stored, mask)[5:15, 0] - truth[5:15])).max() > 90  # unjoined: through 0
+    np.testing.assert_array_equal(stored, np.where(mask, 0.0, wrap_deg(truth)[:, None]))  # the input untouched
+    # stored continuously (values beyond 180): a turn of 354° across the gap is a turn, kept
+    turn = np.linspace(0.0, 354.0, 60)[:, None]
+    long_gap = np.zeros_like(mask)
+    long_gap[1:59] = True
+    np.testing.assert_array_equal(unwrap_observed(turn, long_gap, [0]), turn)
+    # the same edges in a wrapped column (0 and -6): the short way
+    np.testing.assert_allclose(unwrap_observed(wrap_deg(turn), long_gap, [0])[-1, 0], -6.0)
+    # a wrapped column whose edges differ by less than WRAP_STEP: motion, not a wrap
+    swing = np.where(t < 10, -100.0, -100.0 + WRAP_STEP - 1.0)[:, None]
+    np.testing.assert_array_equal(unwrap_observed(swing, mask, [0]), swing)
+    # inside an observed run a step over 180° is a wrap, as the reader takes it
+    runs_wrap = wrap_deg(160.0 + 3.0 * t)[:, None]
+    out = unwrap_observed(runs_wrap, mask, [0])
+    np.testing.assert_allclose(out[~mask[:, 0], 0], (160.0 + 3.0 * t)[~mask[:, 0]])
 
 
 @pytest.fixture(scope="module")
-def corrupted(cmu):
-    """The CMU clip's first 600 frames with noise, and two gaps in every other scored channel; in ``moved`` the
-    runs of those channels after each gap are stored on other branches (+360 after the first, -360 after the
-    second): the same angles."""
+def file_with_gaps(cmu, tmp_path_factory):
+    """The CMU clip's first 600 frames with noise and two gaps in every other scored channel, turned so those
+    channels cross ±180° inside the first gap; stored wrapped, with placeholder zeros in the gaps."""
     motion = cmu.with_channels(cmu.channels[:600])
+    cols = np.flatnonzero(motion.skeleton.scored_mask & motion.skeleton.rotation_mask)[::2]
+    turned = motion.channels.copy()
+    turned[:, cols] += 180.0 - turned[100, cols]  # each crosses 180 at frame 100
+    motion = motion.with_channels(turned)
     noisy, mask = corrupt_motion(motion, "angular-0.5", np.random.default_rng(3))
-    cols = np.flatnonzero(motion.skeleton.scored_mask)[::2]
     mask = mask.copy()
     mask[90:111, cols] = mask[290:311, cols] = True
-    noisy = np.where(mask, np.nan, noisy)
-    moved = noisy.copy()
-    moved[111:290, cols] += 360.0
-    moved[311:, cols] -= 360.0
-    return motion, noisy, moved, mask
+    rotation = motion.skeleton.rotation_mask
+    wrapped = np.where(rotation, wrap_deg(noisy), noisy)
+    folder = tmp_path_factory.mktemp("gaps")
+    write_bvh(folder / "wrapped.bvh", motion.with_channels(np.where(mask, 0.0, wrapped)))
+    np.save(folder / "mask.npy", mask)
+    # what the reader makes of the same file without gaps: the angles the methods should see
+    continuous = np.where(rotation, np.unwrap(wrapped, period=360.0, axis=0), noisy)
+    return motion, continuous, mask, folder
 
 
-@pytest.mark.parametrize("method", METHODS)
-def test_angle_methods_join_a_gap_that_hides_a_wrap(corrupted, method):
-    motion, noisy, moved, mask = corrupted
-    clean = build_method(method).clean
-    plain = clean(motion.with_channels(noisy), mask)
-    joined = clean(motion.with_channels(moved), mask)
+@pytest.mark.parametrize("method", ["lerp", "gaussian-58ms", "ebd"])
+def test_clean_with_a_mask_fills_a_wrapped_file_the_short_way(file_with_gaps, method):
+    motion, continuous, mask, folder = file_with_gaps
+    out = folder / f"{method}.bvh"
+    clean_bvh_file(folder / "wrapped.bvh", out, CleanOptions(method=method, mask=str(folder / "mask.npy")))
+    got = read_bvh(out, unwrap=False).channels
+    stored = read_bvh(folder / "wrapped.bvh", unwrap=False).channels
+    want = build_method(method).clean(motion.with_channels(np.where(mask, np.nan, continuous)), mask)
     scored = motion.skeleton.scored_mask
-    np.testing.assert_allclose(wrap_deg(joined - plain)[:, scored], 0.0, atol=1e-6)
-    seen = ~mask & scored
-    # each observed sample stays on the branch the file gave it and changes by what it did on the plain branches
-    np.testing.assert_allclose((joined - moved)[seen], (plain - noisy)[seen], atol=1e-6)
-    if method in ("lerp", "spline", "ebd"):  # gap fillers keep observed samples bit for bit
-        np.testing.assert_array_equal(joined[seen], moved[seen])
+    # the file's 6 decimals, which EBD's network amplifies to ~1e-5
+    np.testing.assert_allclose(got[:, scored], want[:, scored], rtol=0, atol=2e-5)
+    if method in ("lerp", "ebd"):  # gap fillers keep observed samples (on the file's branch after the unwrap)
+        np.testing.assert_allclose(wrap_deg(got - stored)[~mask], 0.0, atol=2e-6)
 
 
-def test_join_gaps_moves_only_runs_after_a_gap_that_hides_a_wrap():
-    t = np.arange(40, dtype=np.float64)
-    truth = 160.0 + 2.0 * t  # 160 … 238, stored wrapped: it crosses +180 at t = 10
-    stored = wrap_deg(truth)[:, None]
-    mask = np.zeros_like(stored, dtype=bool)
-    mask[5:15] = True
-    for fill in (lerp_fill, spline_fill):
-        out = fill(stored, mask, 360.0)
-        np.testing.assert_allclose(out[5:15, 0], truth[5:15])  # the branch of frame 4: 170 … 188, through 180
-        np.testing.assert_array_equal(out[~mask[:, 0]], stored[~mask[:, 0]])
-        assert np.abs(wrap_deg(fill(stored, mask)[5:15, 0] - truth[5:15])).max() > 90  # without: through 0
-    joined, offsets = join_gaps(stored, mask)
-    np.testing.assert_allclose(joined[~mask[:, 0], 0], truth[~mask[:, 0]])
-    np.testing.assert_array_equal(offsets[:15, 0], 0.0)
-    np.testing.assert_array_equal(offsets[15:, 0], -360.0)
-    # inside an observed run nothing is unwrapped, however large the step (the reader unwrapped the file)
-    jumpy = stored.copy()
-    jumpy[20:] += 300.0  # a step of 300° between observed frames 19 and 20, after the gap
-    joined_jumpy = join_gaps(jumpy, mask)[0]
-    np.testing.assert_allclose(joined_jumpy[20, 0] - joined_jumpy[19, 0], jumpy[20, 0] - jumpy[19, 0])
-    np.testing.assert_allclose(
-        joined_jumpy[~mask[:, 0], 0], joined[~mask[:, 0], 0] + np.where(t >= 20, 300.0, 0.0)[~mask[:, 0]]
-    )
-    # a gap whose edges differ by less than WRAP_STEP is motion, not a wrap
-    swing = np.concatenate([np.zeros(5), np.full(35, 200.0)])[:, None]
-    np.testing.assert_array_equal(join_gaps(swing, mask)[1], 0.0)
-
-
-def test_knn_gives_the_same_fill_whatever_branch_the_run_after_a_gap_is_on(cmu):
-    """kNN joins a gap that hides a wrap before it searches (its features come from the filled base): the same
-    angles with the run after the gap one branch up give the same fill, observed samples kept bit for bit."""
-    parts = [Motion(cmu.skeleton, cmu.channels[a : a + 400], cmu.fps, f"part{a}") for a in (0, 900, 1800)]
-    truth = parts[1]
-    db = SkeletonDatabase.from_motions(parts)
-    noisy, mask = corrupt_motion(truth, "segment-gap:left-arm:1", np.random.default_rng(0))
-    cols = np.flatnonzero(mask.any(axis=0))
-    _, end = runs(mask[:, cols[0]])[0]
-    moved = noisy.copy()
-    moved[end:, cols] += 360.0
-    plain = fill_angles(truth.with_channels(noisy), mask, db)[0]
-    joined = fill_angles(truth.with_channels(moved), mask, db)[0]
-    scored = truth.skeleton.scored_mask
-    np.testing.assert_allclose(wrap_deg(joined - plain)[:, scored], 0.0, atol=1e-6)
-    np.testing.assert_array_equal(joined[~mask], moved[~mask])
+def test_clean_with_a_mask_keeps_a_turn_the_file_stores(cmu_short, tmp_path):
+    """A file that stores a column continuously (here 0 before a 60-frame gap, 350 after it): ``clean`` fills
+    the turn, not the 10° the other way round (session 24's join in every method did that)."""
+    col = int(np.flatnonzero(cmu_short.skeleton.scored_mask & cmu_short.skeleton.rotation_mask)[0])
+    channels = cmu_short.channels.copy()
+    channels[:, col] = np.interp(np.arange(channels.shape[0]), [199, 260], [0.0, 350.0])  # 0 before, 350 after
+    mask = np.zeros(channels.shape, dtype=bool)
+    mask[200:260, col] = True
+    stored = np.where(mask, 0.0, channels)
+    write_bvh(tmp_path / "turn.bvh", cmu_short.with_channels(stored))
+    np.save(tmp_path / "mask.npy", mask)
+    options = CleanOptions(method="lerp", mask=str(tmp_path / "mask.npy"))
+    clean_bvh_file(tmp_path / "turn.bvh", tmp_path / "out.bvh", options)
+    got = read_bvh(tmp_path / "out.bvh", unwrap=False).channels[:, col]
+    np.testing.assert_allclose(got[199:261], np.linspace(channels[199, col], channels[260, col], 62), atol=2e-6)
 
 
 def test_gaussian_cv_does_not_unwrap_inside_an_observed_run(cmu):

@@ -19,7 +19,7 @@ import numpy as np
 from mocapnet.corpus import Corpus, load_corpus, style_label
 from mocapnet.corrupt import Corruption, corrupt_markers, corrupt_motion, seed_for
 from mocapnet.evaluate import metrics
-from mocapnet.fill import lerp_fill_angles
+from mocapnet.fill import lerp_fill
 from mocapnet.io.atomic import MocapFileError
 from mocapnet.io.c3d import read_c3d
 from mocapnet.kinematics import global_transforms, inverse_kinematics, local_rotations, motion_points
@@ -138,7 +138,7 @@ def _points_method_as_angles(method: Method):
 
     def clean(noisy: Motion, mask: np.ndarray) -> np.ndarray:
         sk = noisy.skeleton
-        filled = lerp_fill_angles(noisy.channels, mask, sk.rotation_mask)
+        filled = lerp_fill(noisy.channels, mask)
         base = noisy.with_channels(filled)
         joint_missing = np.stack([mask[:, sk.joint_channels(j)].any(axis=1) for j in range(sk.n_joints)], axis=1)
         # A joint's position depends on its ancestors' rotations: it is missing if any ancestor is.

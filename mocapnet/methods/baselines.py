@@ -2,9 +2,8 @@
 
 The array functions live in ``mocapnet.fill`` (re-exported here: ``gaussian_smooth``, ``lerp_fill``,
 ``spline_fill``); this module registers the methods built on them. Methods change only
-the skeleton's scored channels; gaps (mask True) are filled before any smoothing, and a gap whose edges differ by
-more than ``fill.WRAP_STEP`` degrees (a wrap the reader could not see through the gap) is bridged the shorter way
-round the circle, every sample coming back on the branch the file gave it (or the sample before its gap).
+the skeleton's scored channels; gaps (mask True) are filled before any smoothing. Angles are taken as continuous
+along time (``read_bvh``; a file with gaps: ``fill.unwrap_observed``, which ``mocapnet clean`` runs).
 """
 
 from __future__ import annotations
@@ -15,7 +14,7 @@ import numpy as np
 
 from mocapnet.adaptive_smooth import cv_gaussian, cv_gaussian_runs
 from mocapnet.corrupt import corrupt_motion, seed_for
-from mocapnet.fill import gaussian_smooth, join_columns, join_gaps, lerp_fill, mask_groups, spline_fill
+from mocapnet.fill import gaussian_smooth, lerp_fill, mask_groups, spline_fill
 from mocapnet.methods.registry import MethodContext, register
 from mocapnet.motion import Markers, Motion
 from mocapnet.selfcheck import limit_change
@@ -23,17 +22,9 @@ from mocapnet.selfcheck import limit_change
 __all__ = ["gaussian_smooth", "lerp_fill", "mask_groups", "spline_fill", "tune_sigmas", "SIGMA_GRID_S"]
 
 
-#: Angles in degrees: a gap that hides a wrap is bridged the shorter way round the circle (``fill.join_gaps``).
-ANGLE_PERIOD = 360.0
-
-
-def filled_joined(noisy: Motion, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The clip's channels ``[T, C]`` with every gap that hides a wrap joined in the rotation channels
-    (``fill.join_gaps``) and the gaps filled linearly, and the offsets ``[T, C]`` (multiples of 360; 0 in the
-    other channels) that put each sample back on the file's branch: smooth the first, then add the second."""
-    joined, offsets = join_columns(noisy.channels, mask, noisy.skeleton.rotation_mask)
-    filled = lerp_fill(joined, mask) if mask.any() else joined.astype(np.float64, copy=True)
-    return filled, np.zeros(filled.shape) if offsets is None else offsets
+def filled(noisy: Motion, mask: np.ndarray) -> np.ndarray:
+    """The clip's channels ``[T, C]`` (float64) with the gaps filled linearly: what the smoothers start from."""
+    return lerp_fill(noisy.channels, mask) if mask.any() else noisy.channels.astype(np.float64, copy=True)
 
 
 def _scored_only(noisy: Motion, result: np.ndarray) -> np.ndarray:
@@ -55,8 +46,7 @@ def _noisy(context: MethodContext):
 def _gaussian_method(sigma_s: float):
     def factory(context: MethodContext):
         def clean(noisy: Motion, mask: np.ndarray) -> np.ndarray:
-            filled, offsets = filled_joined(noisy, mask)
-            return _scored_only(noisy, gaussian_smooth(filled, sigma_s, noisy.fps) + offsets)
+            return _scored_only(noisy, gaussian_smooth(filled(noisy, mask), sigma_s, noisy.fps))
 
         return clean
 
@@ -90,10 +80,10 @@ def _gaussian_checked(context: MethodContext, limit: float = CHECK_LIMIT):
         raise ValueError(f"gaussian-58ms+check: limit must be positive, got {limit!r}")
 
     def clean(noisy: Motion, mask: np.ndarray) -> np.ndarray:
-        filled, offsets = filled_joined(noisy, mask)
+        base = filled(noisy, mask)
         scored = noisy.skeleton.scored_mask
-        filled[:, scored] = limit_change(filled[:, scored], gaussian_smooth(filled[:, scored], 0.058, noisy.fps), limit)
-        return _scored_only(noisy, filled + offsets)
+        base[:, scored] = limit_change(base[:, scored], gaussian_smooth(base[:, scored], 0.058, noisy.fps), limit)
+        return _scored_only(noisy, base)
 
     return clean
 
@@ -102,15 +92,15 @@ def _gaussian_checked(context: MethodContext, limit: float = CHECK_LIMIT):
     "gaussian-cv",
     "angles",
     help="Gaussian smoothing with each channel's width chosen by leave-one-out cross-validation over the observed "
-    "frames, from 0.25 (the input kept) to 16 frames (adaptive_smooth.cv_gaussian; gaps filled linearly first, "
-    "a gap that hides a wrap the shorter way round the circle); no training, no noise estimate",
+    "frames, from 0.25 (the input kept) to 16 frames (adaptive_smooth.cv_gaussian; gaps filled linearly first); "
+    "no training, no noise estimate",
 )
 def _gaussian_cv(context: MethodContext):
     def clean(noisy: Motion, mask: np.ndarray) -> np.ndarray:
-        filled, offsets = filled_joined(noisy, mask)
+        base = filled(noisy, mask)
         scored = noisy.skeleton.scored_mask
-        filled[:, scored] = cv_gaussian(filled[:, scored], observed=~mask[:, scored])[0]
-        return _scored_only(noisy, filled + offsets)
+        base[:, scored] = cv_gaussian(base[:, scored], observed=~mask[:, scored])[0]
+        return _scored_only(noisy, base)
 
     return clean
 
@@ -118,7 +108,7 @@ def _gaussian_cv(context: MethodContext):
 @register("lerp", "angles", help="linear interpolation over gaps (no smoothing)")
 def _lerp(context: MethodContext):
     def clean(noisy: Motion, mask: np.ndarray) -> np.ndarray:
-        return _scored_only(noisy, lerp_fill(noisy.channels, mask, ANGLE_PERIOD))
+        return _scored_only(noisy, lerp_fill(noisy.channels, mask))
 
     return clean
 
@@ -126,7 +116,7 @@ def _lerp(context: MethodContext):
 @register("spline", "angles", help="cubic spline over gaps (no smoothing)")
 def _spline(context: MethodContext):
     def clean(noisy: Motion, mask: np.ndarray) -> np.ndarray:
-        return _scored_only(noisy, spline_fill(noisy.channels, mask, ANGLE_PERIOD))
+        return _scored_only(noisy, spline_fill(noisy.channels, mask))
 
     return clean
 
@@ -163,12 +153,11 @@ def tune_sigmas(
         noisy, mask = corrupt_motion(
             motion, corruption, np.random.default_rng(seed_for(corpus, motion.name, -1, corruption))
         )
-        joined, offsets = join_gaps(noisy[:, scored], mask[:, scored], ANGLE_PERIOD)
-        filled = lerp_fill(joined, mask[:, scored])
+        base = lerp_fill(noisy[:, scored], mask[:, scored])
         for g, sigma in enumerate(grid_s):
-            err = gaussian_smooth(filled, sigma, motion.fps) + offsets - motion.channels[:, scored]
+            err = gaussian_smooth(base, sigma, motion.fps) - motion.channels[:, scored]
             sse[k, g] = np.nansum(err**2, axis=0)
-        count[k] = np.isfinite(filled).sum()
+        count[k] = np.isfinite(base).sum()
 
     def figure(total: np.ndarray) -> np.ndarray:
         """Mean over clips of the RMS, for clip totals ``[clips, ...]`` of squared error."""
@@ -208,8 +197,7 @@ def _gaussian_tuned(
     sigmas = tune_sigmas(train, corruption or context.corruption, corpus, max_clips=max_clips)
 
     def clean(noisy: Motion, mask: np.ndarray) -> np.ndarray:
-        filled, offsets = filled_joined(noisy, mask)
-        return _scored_only(noisy, gaussian_smooth(filled, sigmas, noisy.fps) + offsets)
+        return _scored_only(noisy, gaussian_smooth(filled(noisy, mask), sigmas, noisy.fps))
 
     clean.sigmas_s = sigmas  # type: ignore[attr-defined]
     return clean

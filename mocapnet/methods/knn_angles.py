@@ -60,7 +60,7 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from mocapnet.fill import join_columns, lerp_fill, runs
+from mocapnet.fill import lerp_fill, runs
 from mocapnet.kinematics import (
     inverse_kinematics,
     joint_positions,
@@ -336,26 +336,9 @@ def fill_angles(
 ) -> tuple[np.ndarray, FillStats]:
     """Fill the masked channels of ``motion.channels [T, C]`` (degrees; ``mask [T, C]`` True = missing)
     from ``db`` (module docstring). Returns channels ``[T, C]`` (observed samples unchanged, bit for bit) and
-    stats. A gap that hides a wrap is joined first (``fill.join_gaps``, the rotation channels): the search and
-    the fill see one continuous curve, and each sample goes back on the file's branch.
+    stats. Angles are taken as continuous along time (``fill.unwrap_observed``).
 
     Raises ValueError naming the motion when its skeleton does not match the database's."""
-    joined, offsets = join_columns(motion.channels, mask, motion.skeleton.rotation_mask)
-    if offsets is None:
-        return _fill_joined(motion, mask, db, settings, exclude, searcher)
-    out, stats = _fill_joined(motion.with_channels(joined), mask, db, settings, exclude, searcher)
-    return np.where(mask, out + offsets, motion.channels), stats
-
-
-def _fill_joined(
-    motion: Motion,
-    mask: np.ndarray,
-    db: SkeletonDatabase,
-    settings: WindowSettings | None,
-    exclude: Iterable[str],
-    searcher: Searcher | None,
-) -> tuple[np.ndarray, FillStats]:
-    """``fill_angles`` on channels whose gaps hide no wrap."""
     t_start = time.process_time()
     settings = settings or WindowSettings(**ANGLE_DEFAULTS)  # validated by WindowSettings.__post_init__
     sk = motion.skeleton

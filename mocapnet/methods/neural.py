@@ -41,7 +41,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mocapnet.fill import join_columns, lerp_fill
+from mocapnet.fill import lerp_fill
 from mocapnet.kinematics import wrap_near
 from mocapnet.methods.registry import MethodContext, build_method, register
 from mocapnet.motion import Motion, Skeleton
@@ -328,7 +328,7 @@ def _single(method: str):
             if anchored is not None:
                 factor = float(model.hparams.get("change_limit", 0.0)) if limit is None else limit
                 if factor > 0:
-                    seen = lerp_fill(noisy.channels[:, idx], mask[:, idx], 360.0)
+                    seen = lerp_fill(noisy.channels[:, idx], mask[:, idx])
                     out[:, idx] = limit_change(seen, out[:, idx], factor, anchor=anchored(noisy, mask)[:, idx])
             if partner is not None:
                 out[:, idx] = tta_mean([out[:, idx], partner(noisy, mask)[:, idx]])
@@ -348,7 +348,6 @@ for _name, _what in _WHAT.items():
 
 @register("ebd+ebf", "angles", help=_HELP_PAIR.format(what="EBD fills gaps, then EBF denoises"))
 def _ebd_ebf(context: MethodContext, checkpoints: Sequence[str] | str = (), mode: str = "sequence"):
-    from mocapnet.nn.features import scored_index
     from mocapnet.nn.infer import clean_channels
 
     checkpoints = _paths(checkpoints)
@@ -361,15 +360,8 @@ def _ebd_ebf(context: MethodContext, checkpoints: Sequence[str] | str = (), mode
     def clean(noisy: Motion, mask: np.ndarray) -> np.ndarray:
         # The network's own fill: blending with interpolation (ebd.blend_gaps) assumes clean observed samples
         # and made noise+gaps worse on bandai2 fold 1 (gap error 7.49° blended vs 4.16° raw).
-        # A gap that hides a wrap is joined once, here: EBD's output on the file's branches would step by 360° at
-        # the gap's end, inside what EBF takes for one observed run.
-        idx = scored_index(noisy.skeleton)
-        joined, offsets = join_columns(noisy.channels, mask, idx)
-        filled = clean_channels(ebd(noisy), joined, mask, noisy.skeleton, noisy.fps, mode, gap_blend=None)
+        filled = clean_channels(ebd(noisy), noisy.channels, mask, noisy.skeleton, noisy.fps, mode, gap_blend=None)
         no_gaps = np.zeros_like(mask)
-        out = clean_channels(ebf(noisy), filled, no_gaps, noisy.skeleton, noisy.fps, mode)
-        if offsets is not None:
-            out[:, idx] += offsets[:, idx]
-        return out
+        return clean_channels(ebf(noisy), filled, no_gaps, noisy.skeleton, noisy.fps, mode)
 
     return clean

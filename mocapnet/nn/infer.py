@@ -19,7 +19,7 @@ from os import PathLike
 import numpy as np
 import torch
 
-from mocapnet.fill import join_columns, lerp_fill
+from mocapnet.fill import lerp_fill
 from mocapnet.io.atomic import MocapFileError
 from mocapnet.motion import Skeleton
 from mocapnet.nn.base import NORM_KEYS, CleanerModule, clip_statistics, uses_clip_statistics
@@ -162,17 +162,13 @@ def clean_channels(
     with stand-in gaps); ``"checkpoint"``: the setting stored with the network (``EBD.blend``); None keeps the
     network's fill as it comes. ``change_limit``: EBF's
     self-check factor (``limit_change``; None: the checkpoint's ``change_limit`` hyper-parameter, 0: none).
-    A gap that hides a wrap (its edges differ by more than ``fill.WRAP_STEP``) is joined first (``join_columns``):
-    the network and its interpolations see one continuous curve, and every sample comes back on the file's branch
-    (observed samples an EBD keeps, bit for bit).
+    Angles are taken as continuous along time (``fill.unwrap_observed``); observed samples an EBD keeps bit for bit.
     """
     if mode not in MODES:
         raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
     if isinstance(gap_blend, str) and gap_blend != "checkpoint":
         raise ValueError(f"gap_blend must be a GapBlend, 'checkpoint' or None, got {gap_blend!r}")
     idx = scored_index(skeleton)
-    given = channels
-    channels, offsets = join_columns(channels, mask, idx)
     result, out = _network_output(model, channels, mask, idx, skeleton, fps, mode)
     if isinstance(model, EBD):
         scored = result[:, idx]
@@ -194,10 +190,6 @@ def clean_channels(
         limit = float(model.hparams.get("change_limit", 0.0)) if change_limit is None else change_limit
         cleaned = out.numpy().astype(np.float64)
         result[:, idx] = limit_change(result[:, idx], cleaned, limit) if limit > 0 else cleaned
-    if offsets is not None:
-        result[:, idx] += offsets[:, idx]
-        if isinstance(model, EBD):
-            result[:, idx] = np.where(mask[:, idx], result[:, idx], given[:, idx])
     return result
 
 
