@@ -58,9 +58,9 @@ def cv_gaussian(
     period: float | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """``channels [T, C]`` (continuous along time: positions, or angles as ``read_bvh`` gives them;
-    ``period=360``: angles stored wrapped, unwrapped here from 180° — on noisy angles that takes noise for wraps,
-    which is why a file is unwrapped only between observed frames and across gaps, ``fill.unwrap_observed``)
-    smoothed per channel by the Gaussian
+    ``period=360``: angles stored wrapped, unwrapped here from 180° — on noisy angles that takes noise for wraps;
+    the methods take angles as given, and ``mocapnet clean`` unwraps a file once as it reads it,
+    ``fill.unwrap_observed``) smoothed per channel by the Gaussian
     of ``grid_frames`` (std, frames, each ≥ 0.25) with the smallest leave-one-out error → ``(smoothed [T, C]
     float64 on each sample's own branch, chosen std [C] in frames)``. ``observed [T, C]`` (bool): the frames whose
     residuals are scored (default all; e.g. not the samples a gap filler made up). Edges are padded with the

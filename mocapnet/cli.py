@@ -265,7 +265,8 @@ def build_parser() -> argparse.ArgumentParser:
     cl.add_argument(
         "--mask",
         help="BVH: .npy bool mask of missing samples, [T, C] or [T, J] (their stored values are never read; a "
-        "rotation stored within +-180 whose gap edges differ by more than 270 deg is joined the short way round)",
+        "rotation stored within -180..180 or 0..360 whose gap edges differ by more than 270 deg is joined the short "
+        "way round: a wrap, as far as the file can tell)",
     )
     cl.add_argument("--database", help="C3D: folder of clean C3D takes of the same marker set (knn)")
     cl.add_argument("--plot", help="C3D: write a PNG of the filled markers' trajectories, filled spans highlighted")

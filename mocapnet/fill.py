@@ -57,15 +57,18 @@ def unwrap_observed(channels: np.ndarray, mask: np.ndarray, columns: np.ndarray,
     placeholder values would break the chain. Between neighbouring observed frames a step of more than 180° is
     a wrap, as ``np.unwrap`` and ``read_bvh`` take it. Across a gap, where the file cannot say how far a joint turned:
 
-    - a column whose observed values all lie within ±180° (the file may wrap it) is joined the shorter
-      way round when the gap's edges differ by more than ``WRAP_STEP`` (179 → -179 is a 2° turn);
-    - a column with an observed value beyond ±180° is stored continuously, so its edges say how far it
-      turned (0 → 354 across a gap is a turn of 354°) and are kept.
+    - a column whose observed values fit one of the two storage conventions, within [-180°, 180°] or within
+      [0°, 360°], may be wrapped: its gap is joined the shorter way round when the edges differ by more than
+      ``WRAP_STEP`` (179 → -179 and 358 → 2 are turns of 2° and 4°). A turn of more than 270° hidden in a gap
+      of such a column is invisible in the file and filled the short way too;
+    - a column whose observed values fit neither (e.g. -20 and 330) is stored continuously, so its edges say how
+      far it turned (-20 → 330 across a gap is a turn of 350°) and are kept.
 
     Returns float64 channels (``copy=False``: ``channels`` itself when it is float64, changed in place); masked
     samples move with the observed sample before them (after them, before the first). A column without a masked
     sample gets ``np.unwrap(period=360)``, bit for bit the unwrap ``read_bvh`` does."""
     out = np.array(channels, dtype=np.float64, copy=True) if copy else np.asarray(channels, dtype=np.float64)
+    mask = np.asarray(mask, dtype=bool)
     columns = np.asarray(columns)
     cols = np.flatnonzero(columns) if columns.dtype == bool else columns.astype(np.intp)
     if out.shape[0] < 2 or not cols.size:
@@ -89,7 +92,8 @@ def unwrap_observed(channels: np.ndarray, mask: np.ndarray, columns: np.ndarray,
         wrapped_step[(wrapped_step == -180.0) & (step > 0)] = 180.0
         turns = np.round((step - wrapped_step) / 360.0)
         in_run = ~across & (np.abs(step) >= 180.0)
-        wrapped = np.abs(values).max() <= 180.0
+        low, high = values.min(), values.max()
+        wrapped = (low >= -180.0 and high <= 180.0) or (low >= 0.0 and high <= 360.0)
         joined = across & (np.abs(step) > WRAP_STEP) if wrapped else np.zeros_like(across)
         fix = np.where(in_run | joined, turns, 0.0)
         if not fix.any():

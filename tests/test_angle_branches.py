@@ -38,26 +38,36 @@ def test_unwrap_observed_joins_a_wrapped_column_and_keeps_a_continuous_one():
     np.testing.assert_allclose(lerp_fill(out, mask)[5:15, 0], truth[5:15])  # 170 ... 188, through 180
     assert np.abs(wrap_deg(lerp_fill(stored, mask)[5:15, 0] - truth[5:15])).max() > 90  # unjoined: through 0
     np.testing.assert_array_equal(stored, np.where(mask, 0.0, wrap_deg(truth)[:, None]))  # the input untouched
-    # stored continuously (values beyond 180): a turn of 354° across the gap is a turn, kept
-    turn = np.linspace(0.0, 354.0, 60)[:, None]
+    # stored in [0, 360): 348 ... 10 across the gap is a turn of 22° through 360
+    zero_based = np.where(mask, 0.0, (340.0 + 2.0 * t)[:, None] % 360.0)
+    np.testing.assert_allclose(unwrap_observed(zero_based, mask, [0])[~mask[:, 0], 0], (340.0 + 2.0 * t)[~mask[:, 0]])
+    # stored continuously (fits neither window): -20 before the gap, 330 after it is a turn of 350°, kept
+    turn = np.where(t < 30, -20.0, 330.0)[:, None]
     long_gap = np.zeros_like(mask)
-    long_gap[1:59] = True
+    long_gap[10:50] = True
     np.testing.assert_array_equal(unwrap_observed(turn, long_gap, [0]), turn)
-    # the same edges in a wrapped column (0 and -6): the short way
-    np.testing.assert_allclose(unwrap_observed(wrap_deg(turn), long_gap, [0])[-1, 0], -6.0)
+    # the same edges stored wrapped (-20 and -30): nothing to join, the turn is not in the file
+    np.testing.assert_array_equal(unwrap_observed(wrap_deg(turn), long_gap, [0]), wrap_deg(turn))
+    # a wrapped column with edges 170 and -176 (stored 184): joined
+    edges = np.where(t < 10, 170.0, -176.0)[:, None]
+    np.testing.assert_allclose(unwrap_observed(edges, mask, [0])[15:, 0], 184.0)
+    # an integer 0/1 mask is a mask
+    np.testing.assert_array_equal(unwrap_observed(edges, mask.astype(np.int64), [0]), unwrap_observed(edges, mask, [0]))
     # a wrapped column whose edges differ by less than WRAP_STEP: motion, not a wrap
     swing = np.where(t < 10, -100.0, -100.0 + WRAP_STEP - 1.0)[:, None]
     np.testing.assert_array_equal(unwrap_observed(swing, mask, [0]), swing)
-    # inside an observed run a step over 180° is a wrap, as the reader takes it
-    runs_wrap = wrap_deg(160.0 + 3.0 * t)[:, None]
+    # inside an observed run a step over 180° is a wrap, as the reader takes it (here between frames 26 and 27)
+    runs_wrap = wrap_deg(100.0 + 3.0 * t)[:, None]
+    assert np.abs(np.diff(runs_wrap[15:, 0])).max() > 180.0
     out = unwrap_observed(runs_wrap, mask, [0])
-    np.testing.assert_allclose(out[~mask[:, 0], 0], (160.0 + 3.0 * t)[~mask[:, 0]])
+    np.testing.assert_allclose(out[~mask[:, 0], 0], (100.0 + 3.0 * t)[~mask[:, 0]])
 
 
 @pytest.fixture(scope="module")
 def file_with_gaps(cmu, tmp_path_factory):
-    """The CMU clip's first 600 frames with noise and two gaps in every other scored channel, turned so those
-    channels cross ±180° inside the first gap; stored wrapped, with placeholder zeros in the gaps."""
+    """The CMU clip's first 600 frames with noise and two gaps in every other scored rotation channel, each turned
+    to 180° at frame 100, inside the first gap (about half of them cross it there: their edges need the join);
+    stored wrapped, with placeholder zeros in the gaps."""
     motion = cmu.with_channels(cmu.channels[:600])
     cols = np.flatnonzero(motion.skeleton.scored_mask & motion.skeleton.rotation_mask)[::2]
     turned = motion.channels.copy()
@@ -92,11 +102,11 @@ def test_clean_with_a_mask_fills_a_wrapped_file_the_short_way(file_with_gaps, me
 
 
 def test_clean_with_a_mask_keeps_a_turn_the_file_stores(cmu_short, tmp_path):
-    """A file that stores a column continuously (here 0 before a 60-frame gap, 350 after it): ``clean`` fills
+    """A file that stores a column continuously (here -20 before a 60-frame gap, 330 after it): ``clean`` fills
     the turn, not the 10° the other way round (session 24's join in every method did that)."""
     col = int(np.flatnonzero(cmu_short.skeleton.scored_mask & cmu_short.skeleton.rotation_mask)[0])
     channels = cmu_short.channels.copy()
-    channels[:, col] = np.interp(np.arange(channels.shape[0]), [199, 260], [0.0, 350.0])  # 0 before, 350 after
+    channels[:, col] = np.interp(np.arange(channels.shape[0]), [199, 260], [-20.0, 330.0])  # -20 before, 330 after
     mask = np.zeros(channels.shape, dtype=bool)
     mask[200:260, col] = True
     stored = np.where(mask, 0.0, channels)
