@@ -61,7 +61,9 @@ _EBD_EXTRA = (
     " instead of each gap's verdict),"
     " gate_end=S (seconds: where the length gate ends — shorter gaps keep a share of the network's correction"
     " growing with their length; with the rehearsal, gaps at least this long get the fitted share, shorter ones"
-    " its all-or-nothing verdict)"
+    " its all-or-nothing verdict),"
+    " short=PATH (a second EBD for the gaps shorter than short_max_s, default 0.2 s: each gap is filled by the"
+    " network made for its length, both with the same options)"
 )
 _HELP_PAIR = "{what}; checkpoints: EBD,EBF, default: the shipped ones for the skeleton; option mode=sequence|windowed"
 _BLEND_OPTIONS = (
@@ -73,6 +75,9 @@ _BLEND_OPTIONS = (
     "short_pool",
     "gate_end",
 )
+#: Gaps shorter than this (s) go to the ``short=`` network of ``ebd``: 0.2 s is where the default blend's length
+#: gate (``ebd.GapBlend.gate_s``) gives the network its full weight.
+SHORT_MAX_S = 0.2
 _INDEX = Path(__file__).resolve().parents[1] / "checkpoints" / "index.json"
 
 
@@ -219,6 +224,19 @@ def self_ensemble(
     return result
 
 
+def by_gap_length(long_fill: np.ndarray, short_fill: np.ndarray, mask: np.ndarray, max_frames: float) -> np.ndarray:
+    """``long_fill [T, C]`` with the samples of every gap shorter than ``max_frames`` frames taken from
+    ``short_fill [T, C]`` (a gap: a run of missing frames of the channels that miss together, ``fill.gap_list``;
+    ``mask [T, C]`` True = missing). Observed samples come from ``long_fill``."""
+    from mocapnet.fill import gap_list
+
+    short = np.zeros(mask.shape, dtype=bool)
+    for cols, a, b in gap_list(mask):
+        if b - a < max_frames:
+            short[a:b, cols] = True
+    return np.where(short, short_fill, long_fill)
+
+
 def _blend_partner(method: str, blend: str | None, context: MethodContext, option: str = "blend") -> Callable | None:
     """The angle method ``blend`` names (given as ``option``), built with ``context`` (None when not asked for);
     ValueError for a gap filler (EBD) or a method that is not in the angle space."""
@@ -245,6 +263,8 @@ def _single(method: str):
         rehearse_pool: float | None = None,
         short_pool: int | None = None,
         gate_end: float | None = None,
+        short: str | None = None,
+        short_max_s: float = SHORT_MAX_S,
     ):
         """``limit``: EBF's self-check factor (``selfcheck.limit_change``; default: the checkpoint's, 0: off).
         ``tta``: the self-ensemble (``tta_passes``). ``blend``: an angle method whose output is averaged with
@@ -254,7 +274,9 @@ def _single(method: str):
         ``rehearse``, ``rehearse_margin``, ``rehearse_min_s``, ``rehearse_mix``, ``rehearse_pool``,
         ``short_pool``: EBD's rehearsal check (``ebd.GapBlend``; default: the checkpoint's blend; ``rehearse=0``:
         off). ``gate_end``: EBD's length gate ends here (s; ``GapBlend.gate_s``
-        keeps its start)."""
+        keeps its start). ``short``: an EBD checkpoint for the gaps shorter than ``short_max_s`` (s), run with the
+        same options (``by_gap_length``)."""
+        given = {k: v for k, v in locals().items() if k not in ("factory", "method")}  # the options, for short=
         from mocapnet.nn.ebd import GapBlend, as_blend
         from mocapnet.nn.features import scored_index
         from mocapnet.nn.infer import clean_channels
@@ -262,6 +284,17 @@ def _single(method: str):
         checkpoints = _paths(checkpoints)
         if len(checkpoints) > 1:
             raise ValueError(f"{method} takes one checkpoint, got {len(checkpoints)}")
+        short_clean = None
+        if short is None and short_max_s != SHORT_MAX_S:
+            raise ValueError(f"{method}: short_max_s is for short=PATH (a second EBD for short gaps)")
+        if short is not None:
+            if method != "ebd" or not isinstance(short, str):
+                raise ValueError(
+                    f"{method}: short=PATH names an EBD checkpoint for short gaps (ebd only), got {short!r}"
+                )
+            if isinstance(short_max_s, (bool, str)) or not (np.isfinite(float(short_max_s)) and short_max_s > 0):
+                raise ValueError(f"{method}: short_max_s must be a time > 0 (s), got {short_max_s!r}")
+            short_clean = factory(**{**given, "checkpoints": short, "short": None})
         resolve = _resolver(method, checkpoints[0] if checkpoints else None)
         _check_mode(mode)
         if limit is not None and not (isinstance(limit, (int, float)) and limit >= 0):
@@ -332,6 +365,8 @@ def _single(method: str):
                     out[:, idx] = limit_change(seen, out[:, idx], factor, anchor=anchored(noisy, mask)[:, idx])
             if partner is not None:
                 out[:, idx] = tta_mean([out[:, idx], partner(noisy, mask)[:, idx]])
+            if short_clean is not None:
+                out = by_gap_length(out, short_clean(noisy, mask), mask, float(short_max_s) * fps)
             return out
 
         return clean

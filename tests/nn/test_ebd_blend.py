@@ -428,3 +428,34 @@ def test_validation_error_stays_in_degrees_whatever_the_gap_loss(tiny, sample):
         model.on_validation_epoch_start()
         model.validation_step(batch, 0)
         assert model._sse == pytest.approx(27.0) and model._count == 3
+
+
+def test_short_option_fills_each_gap_with_the_network_made_for_its_length(tiny, sample, tmp_path):
+    """``ebd:short=PATH``: the gaps shorter than ``short_max_s`` (0.2 s) come from the second network, the others
+    from the first, each as that network gives them alone with the same options; observed samples never change;
+    the options are refused on a denoiser, with a time that is not positive, or without ``short``."""
+    from mocapnet.methods.neural import SHORT_MAX_S
+    from mocapnet.methods.registry import build_method
+    from mocapnet.nn.features import scored_index
+
+    model = tiny("ebd", sample).eval()  # untrained: its fill is the interpolation, unlike the shipped network's
+    path = tmp_path / "short.ckpt"
+    torch.save(
+        {"state_dict": model.state_dict(), "hyper_parameters": dict(model.hparams), "mocapnet_model": "EBD"}, path
+    )
+    motion = sample.with_channels(sample.channels[:600])
+    cols = scored_index(motion.skeleton)
+    mask = gap_mask(motion.channels.shape, [(100, 112, list(cols[12:15])), (300, 360, list(cols[30:33]))])
+    short = mask.copy()
+    short[300:360] = False  # the 12-frame gap is 0.1 s at 120 fps; the 60-frame one 0.5 s
+    assert 12 < SHORT_MAX_S * motion.fps < 60
+    pair = build_method(f"ebd:rehearse=0,short={path}").clean(motion, mask)
+    long_only = build_method("ebd:rehearse=0").clean(motion, mask)
+    short_only = build_method(f"ebd={path}:rehearse=0").clean(motion, mask)
+    assert np.abs(long_only - short_only)[short].max() > 1e-3  # the two networks differ on the short gap
+    np.testing.assert_array_equal(pair[short], short_only[short])
+    np.testing.assert_array_equal(pair[~short], long_only[~short])
+    np.testing.assert_array_equal(pair[~mask], motion.channels[~mask])
+    for bad in (f"ebf:short={path}", f"ebd:short={path},short_max_s=0", "ebd:short_max_s=0.5"):
+        with pytest.raises(ValueError, match="short"):
+            build_method(bad)
