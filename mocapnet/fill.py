@@ -46,6 +46,15 @@ def gap_list(mask: np.ndarray) -> list[tuple[np.ndarray, int, int]]:
     return [(cols, a, b) for cols in mask_groups(mask).values() for a, b in runs(mask[:, cols[0]])]
 
 
+def gap_lengths(mask: np.ndarray) -> np.ndarray:
+    """``[T, C]`` int: each missing sample of ``mask [T, C]`` holds the length (frames) of its gap
+    (``gap_list``), each observed sample 0."""
+    lengths = np.zeros(mask.shape, dtype=np.int64)
+    for cols, a, b in gap_list(mask):
+        lengths[a:b, cols] = b - a
+    return lengths
+
+
 #: A step (degrees) across a gap above which the gap is taken to hide a wrap (e.g. 179 → -179), not motion, in a
 #: channel the file stores wrapped (``unwrap_observed``).
 WRAP_STEP = 270.0
@@ -138,10 +147,8 @@ def gap_fill(
     out = lerp_fill(channels, mask) if interpolated is None else np.array(interpolated[0], dtype=np.float64)
     if spline_max < 1:
         return out
-    short = np.zeros(mask.shape, dtype=bool)
-    for cols, a, b in gap_list(mask):
-        if b - a <= spline_max:
-            short[a:b, cols] = True
+    lengths = gap_lengths(mask)
+    short = (lengths > 0) & (lengths <= spline_max)
     cols = np.flatnonzero(short.any(axis=0))
     if cols.size:
         spline = spline_fill(channels[:, cols], mask[:, cols]) if interpolated is None else interpolated[1][:, cols]

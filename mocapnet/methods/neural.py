@@ -41,7 +41,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mocapnet.fill import lerp_fill
+from mocapnet.fill import gap_lengths, lerp_fill
 from mocapnet.kinematics import wrap_near
 from mocapnet.methods.registry import MethodContext, build_method, register
 from mocapnet.motion import Motion, Skeleton
@@ -226,15 +226,10 @@ def self_ensemble(
 
 def by_gap_length(long_fill: np.ndarray, short_fill: np.ndarray, mask: np.ndarray, max_frames: float) -> np.ndarray:
     """``long_fill [T, C]`` with the samples of every gap shorter than ``max_frames`` frames taken from
-    ``short_fill [T, C]`` (a gap: a run of missing frames of the channels that miss together, ``fill.gap_list``;
+    ``short_fill [T, C]`` (a gap: a run of missing frames of the channels that miss together, ``fill.gap_lengths``;
     ``mask [T, C]`` True = missing). Observed samples come from ``long_fill``."""
-    from mocapnet.fill import gap_list
-
-    short = np.zeros(mask.shape, dtype=bool)
-    for cols, a, b in gap_list(mask):
-        if b - a < max_frames:
-            short[a:b, cols] = True
-    return np.where(short, short_fill, long_fill)
+    lengths = gap_lengths(mask)
+    return np.where((lengths > 0) & (lengths < max_frames), short_fill, long_fill)
 
 
 def _blend_partner(method: str, blend: str | None, context: MethodContext, option: str = "blend") -> Callable | None:
