@@ -56,8 +56,17 @@ def gap_lengths(mask: np.ndarray) -> np.ndarray:
 
 
 #: A step (degrees) across a gap above which the gap is taken to hide a wrap (e.g. 179 → -179), not motion, in a
-#: channel the file stores wrapped (``unwrap_observed``).
+#: file that may wrap its angles (``unwrap_observed``).
 WRAP_STEP = 270.0
+
+
+def _fits_a_turn(values: np.ndarray) -> bool:
+    """Whether angles ``values`` (degrees) lie within [-180, 180] or within [0, 360], as a file that wraps stores
+    them (True for none)."""
+    if not values.size:
+        return True
+    low, high = values.min(), values.max()
+    return bool((low >= -180.0 and high <= 180.0) or (low >= 0.0 and high <= 360.0))
 
 
 def unwrap_observed(channels: np.ndarray, mask: np.ndarray, columns: np.ndarray, copy: bool = True) -> np.ndarray:
@@ -66,12 +75,12 @@ def unwrap_observed(channels: np.ndarray, mask: np.ndarray, columns: np.ndarray,
     placeholder values would break the chain. Between neighbouring observed frames a step of more than 180° is
     a wrap, as ``np.unwrap`` and ``read_bvh`` take it. Across a gap, where the file cannot say how far a joint turned:
 
-    - a column whose observed values fit one of the two storage conventions, within [-180°, 180°] or within
-      [0°, 360°], may be wrapped: its gap is joined the shorter way round when the edges differ by more than
-      ``WRAP_STEP`` (179 → -179 and 358 → 2 are turns of 2° and 4°). A turn of more than 270° hidden in a gap
-      of such a column is invisible in the file and filled the short way too;
-    - a column whose observed values fit neither (e.g. -20 and 330) is stored continuously, so its edges say how
-      far it turned (-20 → 330 across a gap is a turn of 350°) and are kept.
+    - when the observed values of every column fit one of the two storage conventions, within [-180°, 180°] or
+      within [0°, 360°], the file may wrap its angles: a gap is joined the shorter way round when its edges differ
+      by more than ``WRAP_STEP`` (179 → -179 and 358 → 2 are turns of 2° and 4°). A turn of more than 270°
+      hidden in a gap is then invisible in the file and filled the short way too;
+    - when some column fits neither (e.g. -20 and 330), the file stores its angles continuously, so every gap's
+      edges say how far the joint turned (-20 → 330 across a gap is a turn of 350°) and are kept.
 
     Returns float64 channels (``copy=False``: ``channels`` itself when it is float64, changed in place); masked
     samples move with the observed sample before them (after them, before the first). A column without a masked
@@ -83,6 +92,7 @@ def unwrap_observed(channels: np.ndarray, mask: np.ndarray, columns: np.ndarray,
     if out.shape[0] < 2 or not cols.size:
         return out
     gapped = mask[:, cols].any(axis=0)
+    wrapped = gapped.any() and all(_fits_a_turn(out[~mask[:, c], c]) for c in cols)  # as stored, before unwrapping
     whole = cols[~gapped]  # no gap: read_bvh's unwrap, on the columns where a step over 180° is possible
     whole = whole[out[:, whole].max(axis=0) - out[:, whole].min(axis=0) > 180.0]
     if whole.size:
@@ -101,8 +111,6 @@ def unwrap_observed(channels: np.ndarray, mask: np.ndarray, columns: np.ndarray,
         wrapped_step[(wrapped_step == -180.0) & (step > 0)] = 180.0
         turns = np.round((step - wrapped_step) / 360.0)
         in_run = ~across & (np.abs(step) >= 180.0)
-        low, high = values.min(), values.max()
-        wrapped = (low >= -180.0 and high <= 180.0) or (low >= 0.0 and high <= 360.0)
         joined = across & (np.abs(step) > WRAP_STEP) if wrapped else np.zeros_like(across)
         fix = np.where(in_run | joined, turns, 0.0)
         if not fix.any():

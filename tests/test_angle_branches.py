@@ -51,6 +51,11 @@ def test_unwrap_observed_joins_a_wrapped_column_and_keeps_a_continuous_one():
     # a wrapped column with edges 170 and -176 (stored 184): joined
     edges = np.where(t < 10, 170.0, -176.0)[:, None]
     np.testing.assert_allclose(unwrap_observed(edges, mask, [0])[15:, 0], 184.0)
+    # one column stored continuously makes the whole file continuous: the other column's edges are kept too
+    both = np.concatenate([turn, edges], axis=1)
+    both_mask = np.concatenate([long_gap, mask], axis=1)
+    np.testing.assert_array_equal(unwrap_observed(both, both_mask, [0, 1]), both)
+    np.testing.assert_allclose(unwrap_observed(both, both_mask, [1])[15:, 1], 184.0)  # column 1 alone may wrap
     # an integer 0/1 mask is a mask
     np.testing.assert_array_equal(unwrap_observed(edges, mask.astype(np.int64), [0]), unwrap_observed(edges, mask, [0]))
     # a wrapped column whose edges differ by less than WRAP_STEP: motion, not a wrap
