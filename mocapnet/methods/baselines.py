@@ -22,11 +22,6 @@ from mocapnet.selfcheck import limit_change
 __all__ = ["gaussian_smooth", "lerp_fill", "mask_groups", "spline_fill", "tune_sigmas", "SIGMA_GRID_S"]
 
 
-def filled(noisy: Motion, mask: np.ndarray) -> np.ndarray:
-    """The clip's channels ``[T, C]`` (float64) with the gaps filled linearly: what the smoothers start from."""
-    return lerp_fill(noisy.channels, mask) if mask.any() else noisy.channels.astype(np.float64, copy=True)
-
-
 def _scored_only(noisy: Motion, result: np.ndarray) -> np.ndarray:
     """Keep unscored (context, translation) channels exactly as the input."""
     out = noisy.channels.copy()
@@ -46,7 +41,7 @@ def _noisy(context: MethodContext):
 def _gaussian_method(sigma_s: float):
     def factory(context: MethodContext):
         def clean(noisy: Motion, mask: np.ndarray) -> np.ndarray:
-            return _scored_only(noisy, gaussian_smooth(filled(noisy, mask), sigma_s, noisy.fps))
+            return _scored_only(noisy, gaussian_smooth(lerp_fill(noisy.channels, mask), sigma_s, noisy.fps))
 
         return clean
 
@@ -80,7 +75,7 @@ def _gaussian_checked(context: MethodContext, limit: float = CHECK_LIMIT):
         raise ValueError(f"gaussian-58ms+check: limit must be positive, got {limit!r}")
 
     def clean(noisy: Motion, mask: np.ndarray) -> np.ndarray:
-        base = filled(noisy, mask)
+        base = lerp_fill(noisy.channels, mask)
         scored = noisy.skeleton.scored_mask
         base[:, scored] = limit_change(base[:, scored], gaussian_smooth(base[:, scored], 0.058, noisy.fps), limit)
         return _scored_only(noisy, base)
@@ -97,7 +92,7 @@ def _gaussian_checked(context: MethodContext, limit: float = CHECK_LIMIT):
 )
 def _gaussian_cv(context: MethodContext):
     def clean(noisy: Motion, mask: np.ndarray) -> np.ndarray:
-        base = filled(noisy, mask)
+        base = lerp_fill(noisy.channels, mask)
         scored = noisy.skeleton.scored_mask
         base[:, scored] = cv_gaussian(base[:, scored], observed=~mask[:, scored])[0]
         return _scored_only(noisy, base)
@@ -197,7 +192,7 @@ def _gaussian_tuned(
     sigmas = tune_sigmas(train, corruption or context.corruption, corpus, max_clips=max_clips)
 
     def clean(noisy: Motion, mask: np.ndarray) -> np.ndarray:
-        return _scored_only(noisy, gaussian_smooth(filled(noisy, mask), sigmas, noisy.fps))
+        return _scored_only(noisy, gaussian_smooth(lerp_fill(noisy.channels, mask), sigmas, noisy.fps))
 
     clean.sigmas_s = sigmas  # type: ignore[attr-defined]
     return clean
