@@ -91,14 +91,13 @@ def unwrap_observed(channels: np.ndarray, mask: np.ndarray, columns: np.ndarray,
     cols = np.flatnonzero(columns) if columns.dtype == bool else columns.astype(np.intp)
     if out.shape[0] < 2 or not cols.size:
         return out
+    from mocapnet.io.bvh import unwrap_rotations
+
     gapped = mask[:, cols].any(axis=0)
     wrapped = gapped.any() and all(_fits_a_turn(out[~mask[:, c], c]) for c in cols)  # as stored, before unwrapping
-    whole = cols[~gapped]  # no gap: read_bvh's unwrap, on the columns where a step over 180° is possible
-    whole = whole[out[:, whole].max(axis=0) - out[:, whole].min(axis=0) > 180.0]
-    if whole.size:
-        whole = whole[np.abs(np.diff(out[:, whole], axis=0)).max(axis=0) > 180.0]
-    if whole.size:
-        out[:, whole] = np.unwrap(out[:, whole], period=360.0, axis=0)
+    whole = np.zeros(out.shape[1], dtype=bool)
+    whole[cols[~gapped]] = True
+    unwrap_rotations(out, whole)  # a column without a gap: read_bvh's own unwrap
     t = np.arange(out.shape[0])
     for c in cols[gapped]:
         seen = t[~mask[:, c]]

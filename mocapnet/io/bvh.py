@@ -546,7 +546,7 @@ def _frame_line(body: bytes, first_line: int, row: int) -> int:
     return first_line + int(np.flatnonzero(counts > 0)[row])
 
 
-def _unwrap_rotations(data: np.ndarray, rotation: np.ndarray) -> None:
+def unwrap_rotations(data: np.ndarray, rotation: np.ndarray) -> None:
     """Unwrap (in place) the rotation columns of ``data [T, C]`` that jump by more than 180° between frames.
 
     Same values as ``np.unwrap(period=360)`` on every rotation column: a column without such a jump is left
@@ -675,7 +675,7 @@ def _parse(raw: bytes, path: Path, cm_per_unit: float | None, unwrap: bool) -> M
     if cm_per_unit != skeleton.cm_per_unit:
         skeleton = dataclasses.replace(skeleton, cm_per_unit=float(cm_per_unit))
     if unwrap:
-        _unwrap_rotations(data, skeleton.rotation_mask)
+        unwrap_rotations(data, skeleton.rotation_mask)
     name = path.name.removesuffix(".gz").removesuffix(".bvh")
     fps = 1.0 / frame_time
     if abs(fps - round(fps)) < 1e-3 * fps:  # "Frame Time: 0.0333333" means 30 fps
