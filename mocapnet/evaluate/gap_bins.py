@@ -175,14 +175,12 @@ def candidates(grid: str = "around") -> dict:
     }
 
 
-def raw_filler(clip: Motion, checkpoint: str | None = None) -> Callable[[Motion, np.ndarray], np.ndarray]:
-    """An EBD network's fill as it comes (no blend): ``checkpoint`` (a path), by default the shipped EBD for
-    clips of ``clip``'s skeleton."""
-    from mocapnet.nn.checkpoints import shipped_checkpoint
-    from mocapnet.nn.infer import clean_channels, load_model
+def raw_filler(checkpoint: str | None = None) -> Callable[[Motion, np.ndarray], np.ndarray]:
+    """An EBD network's fill as it comes (no blend): ``checkpoint`` (a path) alone, by default the shipped
+    ``ebd`` of each clip's skeleton with its short-gap network (``methods.neural.ebd_raw_filler``)."""
+    from mocapnet.methods.neural import ebd_raw_filler
 
-    model = load_model(checkpoint or shipped_checkpoint("ebd", clip.skeleton))
-    return lambda m, mask: clean_channels(model, m.channels, mask, m.skeleton, m.fps, gap_blend=None)
+    return ebd_raw_filler(checkpoint)
 
 
 def tune(repeats: int, checkpoint: str | None = None, grid: str = "around") -> dict:
@@ -193,7 +191,7 @@ def tune(repeats: int, checkpoint: str | None = None, grid: str = "around") -> d
     from mocapnet.nn.ebd import blend_gaps
 
     clips = load_corpus("bandai2", progress=False).split(0)[1]
-    fillers = {n: build_method(n).clean for n in REFERENCES} | {"ebd-raw": raw_filler(clips[0], checkpoint)}
+    fillers = {n: build_method(n).clean for n in REFERENCES} | {"ebd-raw": raw_filler(checkpoint)}
     filled = {c: fill_clips("bandai2", clips, c, repeats, fillers) for c in TUNE}
     scores, fallbacks = {"ebd-raw": ratios(filled, "ebd-raw")}, {}
     for label, blend in candidates(grid).items():
@@ -233,7 +231,7 @@ def compare(corpus: str, clips: Sequence[Motion], checkpoints: Mapping[str, str]
     for label, spec in checkpoints.items():
         fillers[label] = build_method(f"ebd={spec}").clean
         if ":" not in spec:  # options (e.g. rehearse=2) change the blend, not the network's own fill
-            fillers[f"{label} raw"] = raw_filler(clips[0], spec)
+            fillers[f"{label} raw"] = raw_filler(spec)
     filled = {}
     for c in TUNE:
         filled[c] = fill_clips(corpus, clips, c, repeats, fillers)
@@ -281,7 +279,7 @@ def test(corpus: str, n_clips: int | None, repeats: int, checkpoint: str | None 
     clips = subset(load_corpus(corpus, progress=False).split(0)[2], n_clips)
     ebd = "ebd" if checkpoint is None else f"ebd={checkpoint}"
     fillers = {n: build_method(n).clean for n in REFERENCES} | {"ebd": build_method(ebd).clean}
-    fillers["ebd-raw"] = raw_filler(clips[0], checkpoint)
+    fillers["ebd-raw"] = raw_filler(checkpoint)
     names = [*REFERENCES, "ebd-raw", "ebd"]
     rows, bins = [], []
     for c in TEST:

@@ -62,10 +62,14 @@ _EBD_EXTRA = (
     " gate_end=S (seconds: where the length gate ends — shorter gaps keep a share of the network's correction"
     " growing with their length; with the rehearsal, gaps at least this long get the fitted share, shorter ones"
     " its all-or-nothing verdict),"
-    " short=PATH (a second EBD for the gaps shorter than short_max_s, default 0.2 s: each gap is filled by the"
-    " network made for its length, both with the same options)"
+    " short=PATH|off (a second EBD for the gaps shorter than short_max_s, default 0.2 s: each gap is filled by the"
+    " network made for its length, both with the same options; default: the shipped ebd's own short-gap network"
+    " when the main network is the shipped one, none otherwise)"
 )
-_HELP_PAIR = "{what}; checkpoints: EBD,EBF, default: the shipped ones for the skeleton; option mode=sequence|windowed"
+_HELP_PAIR = (
+    "{what}; checkpoints: EBD,EBF, default: the shipped ones for the skeleton; options mode=sequence|windowed, "
+    "short=PATH|off (EBD's network for gaps shorter than short_max_s; default: the shipped ebd's, with it)"
+)
 _BLEND_OPTIONS = (
     "rehearse",
     "rehearse_margin",
@@ -111,6 +115,78 @@ def _resolver(method: str, path: str | None) -> Callable[[Motion], object]:
         return cache[key]
 
     return shipped
+
+
+def _short_resolver(
+    main: str | None, short: str | None, short_max_s: float | None, label: str = "ebd"
+) -> Callable[[Motion], tuple[object, float] | None]:
+    """A function giving, for a motion, EBD's short-gap network and the gap length (s) below which it fills, or
+    None: ``short`` a path (loaded now; gaps under ``short_max_s``, default ``SHORT_MAX_S``); ``short`` None with
+    the shipped main network (``main`` None): the shipped partner of the skeleton's ``ebd``
+    (``checkpoints.shipped_short``; its ``max_s`` unless ``short_max_s`` is given); ``"off"``, or a main
+    network given by path without ``short``: none. ValueError for a ``short_max_s`` without a short network."""
+    off = (short is None and main is not None) or short is False or (isinstance(short, str) and short.lower() == "off")
+    if short not in (None, False) and not isinstance(short, str):
+        raise ValueError(f"{label}: short=PATH names an EBD checkpoint for short gaps, got {short!r}")
+    if short_max_s is not None:
+        if isinstance(short_max_s, (bool, str)) or not (np.isfinite(float(short_max_s)) and short_max_s > 0):
+            raise ValueError(f"{label}: short_max_s must be a time > 0 (s), got {short_max_s!r}")
+        if off:
+            raise ValueError(f"{label}: short_max_s is for a short-gap network (short=PATH, or the shipped ebd's)")
+    if off:
+        return lambda motion: None
+    if short is not None:
+        given = _resolver("ebd", short)
+        max_s = SHORT_MAX_S if short_max_s is None else float(short_max_s)
+        return lambda motion: (given(motion), max_s)
+    from mocapnet.nn.checkpoints import shipped_short
+    from mocapnet.nn.infer import check_skeleton, load_model
+
+    cache: dict[tuple, tuple[object, float] | None] = {}
+
+    def shipped(motion: Motion) -> tuple[object, float] | None:
+        key = motion.skeleton.topology()
+        if key not in cache:
+            found = shipped_short(motion.skeleton)
+            if found is None and short_max_s is not None:
+                raise ValueError(
+                    f"{label}: short_max_s given, but the ebd shipped for this skeleton ({motion.skeleton.describe()}) "
+                    "has no short-gap network: name one with short=PATH"
+                )
+            if found is None:
+                cache[key] = None
+            else:
+                model = load_model(found[0])
+                check_skeleton(model, motion.skeleton, f"shipped checkpoint {found[0].name}", motion.fps)
+                cache[key] = (model, found[1] if short_max_s is None else float(short_max_s))
+        return cache[key]
+
+    return shipped
+
+
+def ebd_raw_filler(
+    main: str | None = None, short: str | None = None, short_max_s: float | None = None, mode: str = "sequence"
+) -> Callable[[Motion, np.ndarray], np.ndarray]:
+    """EBD's own fill as it comes (no blend, no self-check): ``fill(motion, mask [T, C]) -> [T, C]`` degrees, by
+    the network ``main`` (a path; default the shipped ``ebd`` of the motion's skeleton) and, for gaps shorter
+    than its length, the short-gap network (``_short_resolver``: ``short=PATH``, the shipped partner, or none)."""
+    from mocapnet.nn.infer import clean_channels
+
+    network = _resolver("ebd", main)
+    short_for = _short_resolver(main, short, short_max_s)
+    _check_mode(mode)
+
+    def fill(motion: Motion, mask: np.ndarray) -> np.ndarray:
+        def raw(model: object) -> np.ndarray:
+            return clean_channels(model, motion.channels, mask, motion.skeleton, motion.fps, mode, gap_blend=None)
+
+        out = raw(network(motion))
+        pair = short_for(motion)
+        if pair is not None:
+            out = by_gap_length(out, raw(pair[0]), mask, pair[1] * motion.fps)
+        return out
+
+    return fill
 
 
 def _index_entries() -> list[dict]:
@@ -259,7 +335,7 @@ def _single(method: str):
         short_pool: int | None = None,
         gate_end: float | None = None,
         short: str | None = None,
-        short_max_s: float = SHORT_MAX_S,
+        short_max_s: float | None = None,
     ):
         """``limit``: EBF's self-check factor (``selfcheck.limit_change``; default: the checkpoint's, 0: off).
         ``tta``: the self-ensemble (``tta_passes``). ``blend``: an angle method whose output is averaged with
@@ -270,8 +346,8 @@ def _single(method: str):
         ``short_pool``: EBD's rehearsal check (``ebd.GapBlend``; default: the checkpoint's blend; ``rehearse=0``:
         off). ``gate_end``: EBD's length gate ends here (s; ``GapBlend.gate_s``
         keeps its start). ``short``: an EBD checkpoint for the gaps shorter than ``short_max_s`` (s), run with the
-        same options (``by_gap_length``)."""
-        given = {k: v for k, v in locals().items() if k not in ("factory", "method")}  # the options, for short=
+        same options (``by_gap_length``); by default the shipped ``ebd``'s own short-gap network when the main one
+        is shipped too, ``off`` for the main network alone (``_short_resolver``)."""
         from mocapnet.nn.ebd import GapBlend, as_blend
         from mocapnet.nn.features import scored_index
         from mocapnet.nn.infer import clean_channels
@@ -279,18 +355,11 @@ def _single(method: str):
         checkpoints = _paths(checkpoints)
         if len(checkpoints) > 1:
             raise ValueError(f"{method} takes one checkpoint, got {len(checkpoints)}")
-        short_clean = None
-        if short is None and short_max_s != SHORT_MAX_S:
-            raise ValueError(f"{method}: short_max_s is for short=PATH (a second EBD for short gaps)")
-        if short is not None:
-            if method != "ebd" or not isinstance(short, str):
-                raise ValueError(
-                    f"{method}: short=PATH names an EBD checkpoint for short gaps (ebd only), got {short!r}"
-                )
-            if isinstance(short_max_s, (bool, str)) or not (np.isfinite(float(short_max_s)) and short_max_s > 0):
-                raise ValueError(f"{method}: short_max_s must be a time > 0 (s), got {short_max_s!r}")
-            short_clean = factory(**{**given, "checkpoints": short, "short": None})
-        resolve = _resolver(method, checkpoints[0] if checkpoints else None)
+        if method != "ebd" and (short is not None or short_max_s is not None):
+            raise ValueError(f"{method}: short and short_max_s name EBD's short-gap network (ebd only)")
+        main = checkpoints[0] if checkpoints else None
+        short_for = _short_resolver(main, short, short_max_s) if method == "ebd" else (lambda motion: None)
+        resolve = _resolver(method, main)
         _check_mode(mode)
         if limit is not None and not (isinstance(limit, (int, float)) and limit >= 0):
             raise ValueError(f"{method}: limit must be a number >= 0, got {limit!r}")
@@ -341,8 +410,7 @@ def _single(method: str):
                 raise ValueError(f"{method}: gate_end {gate[1]:g} s must be after the gate's start {gate[0]:g} s")
             return dataclasses.replace(stored, **rehearsal, gate_s=gate)
 
-        def clean(noisy: Motion, mask: np.ndarray) -> np.ndarray:
-            model = resolve(noisy)
+        def run(model, noisy: Motion, mask: np.ndarray) -> np.ndarray:
             sk, fps = noisy.skeleton, noisy.fps
             gap_blend = blend_of(model)
 
@@ -360,8 +428,13 @@ def _single(method: str):
                     out[:, idx] = limit_change(seen, out[:, idx], factor, anchor=anchored(noisy, mask)[:, idx])
             if partner is not None:
                 out[:, idx] = tta_mean([out[:, idx], partner(noisy, mask)[:, idx]])
-            if short_clean is not None:
-                out = by_gap_length(out, short_clean(noisy, mask), mask, float(short_max_s) * fps)
+            return out
+
+        def clean(noisy: Motion, mask: np.ndarray) -> np.ndarray:
+            out = run(resolve(noisy), noisy, mask)
+            pair = short_for(noisy)
+            if pair is not None:
+                out = by_gap_length(out, run(pair[0], noisy, mask), mask, pair[1] * noisy.fps)
             return out
 
         return clean
@@ -377,20 +450,25 @@ for _name, _what in _WHAT.items():
 
 
 @register("ebd+ebf", "angles", help=_HELP_PAIR.format(what="EBD fills gaps, then EBF denoises"))
-def _ebd_ebf(context: MethodContext, checkpoints: Sequence[str] | str = (), mode: str = "sequence"):
+def _ebd_ebf(
+    context: MethodContext,
+    checkpoints: Sequence[str] | str = (),
+    mode: str = "sequence",
+    short: str | None = None,
+    short_max_s: float | None = None,
+):
     from mocapnet.nn.infer import clean_channels
 
     checkpoints = _paths(checkpoints)
     if len(checkpoints) not in (0, 2):
         raise ValueError(f"ebd+ebf takes two checkpoints (EBD,EBF), got {len(checkpoints)}")
-    ebd = _resolver("ebd", checkpoints[0] if checkpoints else None)
+    # The network's own fill: blending with interpolation (ebd.blend_gaps) assumes clean observed samples
+    # and made noise+gaps worse on bandai2 fold 1 (gap error 7.49° blended vs 4.16° raw).
+    fill = ebd_raw_filler(checkpoints[0] if checkpoints else None, short, short_max_s, mode)
     ebf = _resolver("ebf", checkpoints[1] if checkpoints else None)
-    _check_mode(mode)
 
     def clean(noisy: Motion, mask: np.ndarray) -> np.ndarray:
-        # The network's own fill: blending with interpolation (ebd.blend_gaps) assumes clean observed samples
-        # and made noise+gaps worse on bandai2 fold 1 (gap error 7.49° blended vs 4.16° raw).
-        filled = clean_channels(ebd(noisy), noisy.channels, mask, noisy.skeleton, noisy.fps, mode, gap_blend=None)
+        filled = fill(noisy, mask)
         no_gaps = np.zeros_like(mask)
         return clean_channels(ebf(noisy), filled, no_gaps, noisy.skeleton, noisy.fps, mode)
 

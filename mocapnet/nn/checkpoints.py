@@ -136,6 +136,17 @@ def shipped_checkpoint(method: str, skeleton: Skeleton) -> Path:
     )
 
 
+def shipped_short(skeleton: Skeleton) -> tuple[Path, float] | None:
+    """The short-gap partner of the shipped ``ebd`` for ``skeleton``'s topology, as (file, longest gap it fills in
+    seconds, exclusive): the main entry's ``"short": {"file": ..., "max_s": ...}``; None when it has none or no
+    ``ebd`` is shipped for the skeleton."""
+    mine = topology_hash(skeleton)
+    for entry in read_index():
+        if serves(entry, "ebd") and entry["skeleton_hash"] == mine and entry.get("short"):
+            return CHECKPOINT_DIR / entry["short"]["file"], float(entry["short"]["max_s"])
+    return None
+
+
 def export(
     src: str | PathLike,
     name: str,

@@ -97,7 +97,10 @@ def accepts(method: str, kind: str) -> bool:
 
 def serves(entry: Mapping[str, Any], method: str) -> bool:
     """Whether ``checkpoints/index.json`` ``entry`` is the shipped checkpoint of ``method``: its own method
-    name, or ``ebf`` for the EBF variant marked ``"ebf": true`` (the best shipped variant for its skeleton)."""
+    name, or ``ebf`` for the EBF variant marked ``"ebf": true`` (the best shipped variant for its skeleton).
+    A network shipped as another one's short-gap partner (``"short_for": FILE``) serves no method itself."""
+    if entry.get("short_for"):
+        return False
     return entry["method"] == method or (method == "ebf" and bool(entry.get("ebf")))
 
 

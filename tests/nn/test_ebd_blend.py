@@ -456,6 +456,63 @@ def test_short_option_fills_each_gap_with_the_network_made_for_its_length(tiny, 
     np.testing.assert_array_equal(pair[short], short_only[short])
     np.testing.assert_array_equal(pair[~short], long_only[~short])
     np.testing.assert_array_equal(pair[~mask], motion.channels[~mask])
-    for bad in (f"ebf:short={path}", f"ebd:short={path},short_max_s=0", "ebd:short_max_s=0.5"):
+    for bad in (f"ebf:short={path}", f"ebd:short={path},short_max_s=0", f"ebd={path}:short_max_s=0.5"):
         with pytest.raises(ValueError, match="short"):
             build_method(bad)
+    with pytest.raises(ValueError, match="short"):
+        build_method("ebd:short=off,short_max_s=0.5")
+    with pytest.raises(ValueError, match="no short-gap network"):  # the CMU skeleton's shipped ebd has none
+        build_method("ebd:short_max_s=0.5").clean(motion, mask)
+
+
+def test_the_shipped_ebd_brings_its_short_gap_network(tiny, sample, tmp_path, monkeypatch):
+    """An index entry ``"short": {"file", "max_s"}`` makes the shipped ``ebd`` a pair: ``ebd`` (and ``ebd+ebf``'s
+    raw fill, and the benchmarks' ``ebd-raw``) equal the two networks named by path with ``short=``; the partner
+    (``"short_for"``) is never what a method looks up; ``short=off`` runs the main network alone."""
+    import shutil
+
+    from mocapnet.evaluate.gap_bins import raw_filler
+    from mocapnet.methods.neural import by_gap_length, ebd_raw_filler
+    from mocapnet.methods.registry import build_method
+    from mocapnet.nn import checkpoints
+    from mocapnet.nn.features import scored_index, topology_hash
+
+    real = {e["file"]: e for e in checkpoints.read_index()}
+    shutil.copy(checkpoints.CHECKPOINT_DIR / "cmu120_ebd.ckpt", tmp_path / "main.ckpt")
+    shutil.copy(checkpoints.CHECKPOINT_DIR / "cmu120_ebf.ckpt", tmp_path / "ebf.ckpt")
+    model = tiny("ebd", sample).eval()
+    torch.save(
+        {"state_dict": model.state_dict(), "hyper_parameters": dict(model.hparams), "mocapnet_model": "EBD"},
+        tmp_path / "short.ckpt",
+    )
+    mine = topology_hash(sample.skeleton)
+    index = [
+        {"file": "short.ckpt", "method": "ebd", "skeleton_hash": mine, "short_for": "main.ckpt"},
+        {**real["cmu120_ebd.ckpt"], "file": "main.ckpt", "short": {"file": "short.ckpt", "max_s": 0.2}},
+        {**real["cmu120_ebf.ckpt"], "file": "ebf.ckpt"},
+    ]
+    monkeypatch.setattr(checkpoints, "CHECKPOINT_DIR", tmp_path)
+    monkeypatch.setattr(checkpoints, "read_index", lambda: index)
+    assert checkpoints.shipped_checkpoint("ebd", sample.skeleton) == tmp_path / "main.ckpt"
+    assert checkpoints.shipped_short(sample.skeleton) == (tmp_path / "short.ckpt", 0.2)
+
+    motion = sample.with_channels(sample.channels[:600])
+    cols = scored_index(motion.skeleton)
+    mask = gap_mask(motion.channels.shape, [(100, 112, list(cols[12:15])), (300, 360, list(cols[30:33]))])
+    main, short = str(tmp_path / "main.ckpt"), str(tmp_path / "short.ckpt")
+    shipped = build_method("ebd:rehearse=0").clean(motion, mask)
+    named = build_method(f"ebd={main}:rehearse=0,short={short}").clean(motion, mask)
+    alone = build_method("ebd:rehearse=0,short=off").clean(motion, mask)
+    np.testing.assert_array_equal(shipped, named)
+    np.testing.assert_array_equal(alone, build_method(f"ebd={main}:rehearse=0").clean(motion, mask))
+    assert np.abs(shipped - alone)[100:112].max() > 1e-3 and np.array_equal(shipped[300:360], alone[300:360])
+
+    raw = raw_filler()(motion, mask)
+    pair = by_gap_length(ebd_raw_filler(main)(motion, mask), ebd_raw_filler(short)(motion, mask), mask, 0.2 * 120)
+    np.testing.assert_array_equal(raw, pair)
+    np.testing.assert_array_equal(raw[~mask], motion.channels[~mask])
+    ebf = str(tmp_path / "ebf.ckpt")
+    np.testing.assert_array_equal(
+        build_method("ebd+ebf").clean(motion, mask),
+        build_method(f"ebd+ebf={main},{ebf}:short={short}").clean(motion, mask),
+    )
