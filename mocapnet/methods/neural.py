@@ -212,6 +212,15 @@ def _shipped_ebf_recipes() -> str:
     return "; ".join(f"{e['corpus']}: {e['method']} ({e.get('recipe', '')}, {e.get('budget', '')})" for e in entries)
 
 
+def _shipped_ebd_networks() -> str:
+    """Which networks ``ebd`` runs, per corpus, from the shipped index (a main one, and its short-gap partner)."""
+    parts = []
+    for e in (e for e in _index_entries() if serves(e, "ebd")):
+        pair = f" with {e['short']['file']} for gaps under {e['short']['max_s']:g} s" if e.get("short") else ""
+        parts.append(f"{e['corpus']}: {e['file']}{pair}")
+    return "; ".join(parts) or "none shipped"
+
+
 def _paths(checkpoints: Sequence[str] | str) -> list[str]:
     """``checkpoints`` as a list (the ``name:checkpoints=path`` option form gives one string)."""
     return [checkpoints] if isinstance(checkpoints, str) else list(checkpoints)
@@ -444,6 +453,7 @@ def _single(method: str):
 
 _WHAT = {v.name: v.what for v in VARIANTS}
 _WHAT["ebf"] += f": {_shipped_ebf_recipes()}"
+_WHAT["ebd"] += f" (shipped: {_shipped_ebd_networks()})"
 for _name, _what in _WHAT.items():
     _extra = _EBD_EXTRA if _name == "ebd" else ""
     register(_name, "angles", help=_HELP.format(what=_what, extra=_extra))(_single(_name))

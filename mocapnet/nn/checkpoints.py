@@ -156,12 +156,16 @@ def export(
     budget: str = "",
     as_ebf: bool = False,
     fp16: bool = False,
+    short: str | None = None,
+    short_max_s: float = 0.2,
 ) -> Path:
     """Slim ``src`` into ``mocapnet/checkpoints/<name>.ckpt`` and record it in ``index.json`` (replacing an
     entry of the same file name) with its SHA-256, ``recipe`` (how it was trained, in words) and ``budget``
     (wall-clock training time). ``as_ebf``: this EBF variant becomes what ``ebf`` runs for its skeleton.
     ``fp16``: store the weights in half precision (half the bytes; loading casts them back to float32), the
-    normaliser buffers stay float32."""
+    normaliser buffers stay float32. ``short``: the file name of a shipped EBD of the same skeleton that fills
+    this EBD's gaps shorter than ``short_max_s`` seconds (``shipped_short``; it is marked ``"short_for"`` and
+    serves no method itself). Nothing is written when a check fails."""
     from mocapnet.corpus import load_corpus
 
     ckpt = read_checkpoint(src)
@@ -174,8 +178,17 @@ def export(
     skeleton = load_corpus(hp["corpus"], progress=False).motions[0].skeleton
     if topology_hash(skeleton) != hp["skeleton_hash"]:
         raise ValueError(f"{src}: skeleton hash {hp['skeleton_hash']} does not match corpus {hp['corpus']!r}")
-    CHECKPOINT_DIR.mkdir(parents=True, exist_ok=True)
     dst = CHECKPOINT_DIR / f"{name}.ckpt"
+    partner = None
+    if short is not None:
+        partner = next((e for e in read_index() if e["file"] == short and e["file"] != dst.name), None)
+        same = partner is not None and partner["method"] == "ebd" and partner["skeleton_hash"] == hp["skeleton_hash"]
+        if method_of(slim) != "ebd" or not same or not short_max_s > 0:
+            raise ValueError(
+                f"--short {short}: a short-gap partner is a shipped EBD of the same skeleton, for an EBD, with a "
+                f"length > 0 s (this is {method_of(slim)}; shipped: {sorted(e['file'] for e in read_index())})"
+            )
+    CHECKPOINT_DIR.mkdir(parents=True, exist_ok=True)
     torch.save(slim, dst)
     states = [v for k, v in ckpt.get("callbacks", {}).items() if "ModelCheckpoint" in k]
     score = states[0].get("best_model_score") if states else None
@@ -206,10 +219,14 @@ def export(
         if entry["method"] not in EBF_VARIANTS:
             raise ValueError(f"{src}: a {entry['method']} checkpoint cannot serve 'ebf'")
         entry["ebf"] = True
+    if short is not None:
+        entry["short"] = {"file": short, "max_s": float(short_max_s)}
     others = [e for e in read_index() if e["file"] != dst.name]
     for e in others:
         if as_ebf and e["skeleton_hash"] == entry["skeleton_hash"]:
             e.pop("ebf", None)
+        if e["file"] == short:
+            e["short_for"] = dst.name
     entries = others + [entry]
     INDEX.write_text(json.dumps({"checkpoints": sorted(entries, key=lambda e: e["file"])}, indent=1) + "\n")
     return dst
@@ -224,8 +241,16 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--budget", default="", help="wall-clock training budget, e.g. '70 min on 1 CPU thread'")
     parser.add_argument("--ebf", action="store_true", help="make this EBF variant the one `ebf` runs")
     parser.add_argument("--fp16", action="store_true", help="store the weights in half precision")
+    parser.add_argument(
+        "--short",
+        default=None,
+        metavar="FILE",
+        help="a shipped EBD (file name, e.g. bandai2_ebd_short.ckpt) that fills this EBD's short gaps",
+    )
+    parser.add_argument("--short-max-s", type=float, default=0.2, help="the gaps --short fills: shorter than this (s)")
     args = parser.parse_args(argv)
     options = {"recipe": args.recipe, "budget": args.budget, "as_ebf": args.ebf, "fp16": args.fp16}
+    options |= {"short": args.short, "short_max_s": args.short_max_s}
     print(export(args.checkpoint, args.name, args.command, **options))
 
 

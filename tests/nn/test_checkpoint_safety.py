@@ -183,6 +183,32 @@ def test_export_records_sha256_and_keeps_the_network(fp16, tiny, sample, tmp_pat
     assert float(diff) < (0.05 if fp16 else 1e-5)
 
 
+def test_export_pairs_an_ebd_with_its_short_gap_network(tiny, sample, tmp_path, monkeypatch):
+    """``export(short=FILE)`` records the pair both ways: the main entry names its partner and length, the partner
+    is marked ``short_for`` and is never the lookup's answer; a partner that is not a shipped EBD of the skeleton
+    is refused and nothing is written."""
+    from tests.nn.test_neural_methods import save
+
+    monkeypatch.setattr(checkpoints, "CHECKPOINT_DIR", (tmp_path / "ship").resolve())
+    monkeypatch.setattr(checkpoints, "INDEX", tmp_path / "ship" / "index.json")
+    short = checkpoints.export(save(tiny("ebd", sample), tmp_path / "a.ckpt"), "sample_ebd_short")
+    denoiser = checkpoints.export(save(tiny("ebf-free", sample), tmp_path / "b.ckpt"), "sample_ebf")
+    main_src = save(tiny("ebd", sample), tmp_path / "c.ckpt")
+    for bad in ("missing.ckpt", denoiser.name):
+        with pytest.raises(ValueError, match="short-gap partner"):
+            checkpoints.export(main_src, "sample_ebd", short=bad)
+    with pytest.raises(ValueError, match="short-gap partner"):  # a denoiser cannot have one
+        checkpoints.export(save(tiny("ebf-free", sample), tmp_path / "d.ckpt"), "sample_ebf2", short=short.name)
+    assert not (tmp_path / "ship" / "sample_ebd.ckpt").exists()
+    assert not (tmp_path / "ship" / "sample_ebf2.ckpt").exists()
+    main = checkpoints.export(main_src, "sample_ebd", short=short.name, short_max_s=0.25)
+    entries = {e["file"]: e for e in read_index()}
+    assert entries[main.name]["short"] == {"file": short.name, "max_s": 0.25}
+    assert entries[short.name]["short_for"] == main.name
+    assert checkpoints.shipped_checkpoint("ebd", sample.skeleton) == main
+    assert checkpoints.shipped_short(sample.skeleton) == (short, 0.25)
+
+
 def test_numpy_scalars_are_allowed_and_arrays_refused(tmp_path):
     scalar = tmp_path / "scalar.ckpt"
     torch.save({"lr": np.float64(0.5), "n": np.int64(3)}, scalar)
