@@ -107,7 +107,7 @@ def clean_bvh_file(src: Path, out: Path, options: CleanOptions) -> CleanResult:
     the result's message and ``details["auto"]`` say which and why."""
     from mocapnet.fill import unwrap_observed
     from mocapnet.io import read_bvh, write_bvh
-    from mocapnet.methods.registry import build_method
+    from mocapnet.methods.registry import MethodSpec, build_method
 
     stored = read_bvh(src, unwrap=False)
     mask = read_mask(options.mask, stored) if options.mask else np.zeros(stored.channels.shape, dtype=bool)
@@ -124,8 +124,8 @@ def clean_bvh_file(src: Path, out: Path, options: CleanOptions) -> CleanResult:
         from mocapnet.methods.auto_angles import auto_plan
 
         method, why = auto_plan(motion.skeleton, motion.fps, bool(mask.any()))
-    if options.model:
-        method = f"{method.split('=')[0]}={options.model}"
+    if options.model:  # the checkpoints replaced, the method's options kept
+        method = MethodSpec.parse(method).with_checkpoints(options.model.split(",")).canonical()
     built = build_method(method, space="angles")
     noisy = motion.channels.copy()
     noisy[mask] = np.nan

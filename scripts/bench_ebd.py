@@ -6,7 +6,9 @@
     python scripts/bench_ebd.py --compare clip=a.ckpt --compare corpus=b.ckpt --split style:elderly --clips 84
 
 Test figures: fold-0 clips, the shipped EBD as ``ebd`` (network blended with interpolation and self-checked,
-``mocapnet.nn.ebd.blend_gaps``) and as ``ebd-raw`` (the network's fill as it comes). ``--tune`` scores blend
+``mocapnet.nn.ebd.blend_gaps``) and as ``ebd-raw`` (the networks' fill as it comes: the shipped main network's, and
+its short-gap partner's on the gaps shorter than 0.2 s). ``--checkpoint PATH[:short=PATH2]`` scores another network
+(and partner) instead. ``--tune`` scores blend
 settings on bandai2 fold 1 (the validation fold; bandai1 is never tuned on) with ``gap_bins.ratios``.
 ``--compare`` scores EBD networks (each with the shipped blend, and raw) on a selection set: bandai2 fold 1
 (``--split val``) or the clips of a style the networks were trained without (``--split style:NAME``).
@@ -35,7 +37,11 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=None, help="default 5 (test), 2 (--tune)")
     parser.add_argument("--tune", action="store_true", help="score blend settings on bandai2 fold 1")
     parser.add_argument("--grid", default="around", choices=("around", "gates"), help="--tune's blend settings")
-    parser.add_argument("--checkpoint", default=None, help="an EBD checkpoint instead of the shipped one")
+    parser.add_argument(
+        "--checkpoint",
+        default=None,
+        help="an EBD checkpoint instead of the shipped pair (PATH[:short=PATH2] for a pair)",
+    )
     parser.add_argument(
         "--compare",
         action="append",

@@ -194,3 +194,14 @@ def test_a_channel_masked_in_every_frame_is_named_not_written(tmp_path, cmu):
     with pytest.raises(ValueError, match=rf"mask.npy: lerp cannot fill {label} \(masked in every frame\): 120 samples"):
         clean_file(src, tmp_path / "out.bvh", CleanOptions(method="lerp", mask=str(tmp_path / "mask.npy")))
     assert not (tmp_path / "out.bvh").exists()
+
+
+def test_model_replaces_the_checkpoint_and_keeps_the_method_options(short_bvh, tmp_path):
+    """``--model`` swaps the checkpoint only: ``--method ebd:rehearse=0 --model X`` runs ``ebd=X:rehearse=0``."""
+    from mocapnet.nn.checkpoints import CHECKPOINT_DIR
+
+    ckpt = str(CHECKPOINT_DIR / "cmu120_ebd.ckpt")
+    result = clean_file(short_bvh, tmp_path / "out.bvh", CleanOptions(method="ebd:rehearse=0", model=ckpt))
+    assert result.method == f"ebd={ckpt}:rehearse=0"
+    replaced = clean_file(short_bvh, tmp_path / "out2.bvh", CleanOptions(method="ebd=other.ckpt", model=ckpt))
+    assert replaced.method == f"ebd={ckpt}"

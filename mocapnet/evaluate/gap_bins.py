@@ -176,11 +176,16 @@ def candidates(grid: str = "around") -> dict:
 
 
 def raw_filler(checkpoint: str | None = None) -> Callable[[Motion, np.ndarray], np.ndarray]:
-    """An EBD network's fill as it comes (no blend): ``checkpoint`` (a path) alone, by default the shipped
-    ``ebd`` of each clip's skeleton with its short-gap network (``methods.neural.ebd_raw_filler``)."""
+    """EBD's fill as it comes (no blend; ``methods.neural.ebd_raw_filler``): ``checkpoint`` as ``PATH[:OPTIONS]``
+    (the network alone, or with the one its ``short=PATH`` names), by default the shipped ``ebd`` of each clip's
+    skeleton with its short-gap network."""
     from mocapnet.methods.neural import ebd_raw_filler
+    from mocapnet.methods.registry import MethodSpec
 
-    return ebd_raw_filler(checkpoint)
+    if checkpoint is None:
+        return ebd_raw_filler()
+    spec = MethodSpec.parse(f"ebd={checkpoint}")
+    return ebd_raw_filler(spec.checkpoints[0], spec.options.get("short", "auto"), spec.options.get("short_max_s"))
 
 
 def tune(repeats: int, checkpoint: str | None = None, grid: str = "around") -> dict:
@@ -230,7 +235,7 @@ def compare(corpus: str, clips: Sequence[Motion], checkpoints: Mapping[str, str]
     fillers = {n: build_method(n).clean for n in REFERENCES}
     for label, spec in checkpoints.items():
         fillers[label] = build_method(f"ebd={spec}").clean
-        if ":" not in spec:  # options (e.g. rehearse=2) change the blend, not the network's own fill
+        if ":" not in spec or ":short=" in spec or ",short=" in spec:  # blend options leave the raw fill as it is
             fillers[f"{label} raw"] = raw_filler(spec)
     filled = {}
     for c in TUNE:

@@ -45,7 +45,7 @@ from mocapnet.fill import gap_lengths, lerp_fill
 from mocapnet.kinematics import wrap_near
 from mocapnet.methods.registry import MethodContext, build_method, register
 from mocapnet.motion import Motion, Skeleton
-from mocapnet.nn.variants import VARIANTS, accepts, method_of, serves
+from mocapnet.nn.variants import SHORT_MAX_S, VARIANTS, accepts, method_of, serves
 from mocapnet.selfcheck import limit_change
 
 _HELP = (
@@ -62,13 +62,13 @@ _EBD_EXTRA = (
     " gate_end=S (seconds: where the length gate ends — shorter gaps keep a share of the network's correction"
     " growing with their length; with the rehearsal, gaps at least this long get the fitted share, shorter ones"
     " its all-or-nothing verdict),"
-    " short=PATH|off (a second EBD for the gaps shorter than short_max_s, default 0.2 s: each gap is filled by the"
-    " network made for its length, both with the same options; default: the shipped ebd's own short-gap network"
-    " when the main network is the shipped one, none otherwise)"
+    " short=PATH|auto|off (a second EBD for the gaps shorter than short_max_s, default 0.2 s: each gap is filled by"
+    " the network made for its length, both with the same options; auto, the default: the shipped ebd's own"
+    " short-gap network when the main network is the shipped one, none otherwise)"
 )
 _HELP_PAIR = (
     "{what}; checkpoints: EBD,EBF, default: the shipped ones for the skeleton; options mode=sequence|windowed, "
-    "short=PATH|off (EBD's network for gaps shorter than short_max_s; default: the shipped ebd's, with it)"
+    "short=PATH|auto|off (EBD's network for gaps shorter than short_max_s; auto: the shipped ebd's, with it)"
 )
 _BLEND_OPTIONS = (
     "rehearse",
@@ -79,9 +79,6 @@ _BLEND_OPTIONS = (
     "short_pool",
     "gate_end",
 )
-#: Gaps shorter than this (s) go to the ``short=`` network of ``ebd``: 0.2 s is where the default blend's length
-#: gate (``ebd.GapBlend.gate_s``) gives the network its full weight.
-SHORT_MAX_S = 0.2
 _INDEX = Path(__file__).resolve().parents[1] / "checkpoints" / "index.json"
 
 
@@ -117,17 +114,23 @@ def _resolver(method: str, path: str | None) -> Callable[[Motion], object]:
     return shipped
 
 
+#: ``short=`` values that turn the short-gap network off (the registry reads ``none`` as None, ``false`` as False).
+SHORT_OFF = (None, False, "off", "none")
+
+
 def _short_resolver(
-    main: str | None, short: str | None, short_max_s: float | None, label: str = "ebd"
+    main: str | None, short: str | bool | None, short_max_s: float | None, label: str = "ebd"
 ) -> Callable[[Motion], tuple[object, float] | None]:
     """A function giving, for a motion, EBD's short-gap network and the gap length (s) below which it fills, or
-    None: ``short`` a path (loaded now; gaps under ``short_max_s``, default ``SHORT_MAX_S``); ``short`` None with
-    the shipped main network (``main`` None): the shipped partner of the skeleton's ``ebd``
-    (``checkpoints.shipped_short``; its ``max_s`` unless ``short_max_s`` is given); ``"off"``, or a main
-    network given by path without ``short``: none. ValueError for a ``short_max_s`` without a short network."""
-    off = (short is None and main is not None) or short is False or (isinstance(short, str) and short.lower() == "off")
-    if short not in (None, False) and not isinstance(short, str):
-        raise ValueError(f"{label}: short=PATH names an EBD checkpoint for short gaps, got {short!r}")
+    None. ``short``: a path (loaded now; gaps under ``short_max_s``, default ``SHORT_MAX_S``); ``"auto"``: the
+    shipped partner of the skeleton's ``ebd`` (``checkpoints.shipped_short``; its ``max_s`` unless
+    ``short_max_s`` is given) when the main network is the shipped one (``main`` None), none when ``main`` is a
+    path; ``off``/``none``/``false``: none. ValueError for a ``short_max_s`` without a short network."""
+    if isinstance(short, str) and short.strip().lower() in SHORT_OFF:
+        short = None
+    if not (short is None or short is False or isinstance(short, str)):
+        raise ValueError(f"{label}: short=PATH|auto|off names EBD's network for short gaps, got {short!r}")
+    off = short is None or short is False or (short == "auto" and main is not None)
     if short_max_s is not None:
         if isinstance(short_max_s, (bool, str)) or not (np.isfinite(float(short_max_s)) and short_max_s > 0):
             raise ValueError(f"{label}: short_max_s must be a time > 0 (s), got {short_max_s!r}")
@@ -135,7 +138,7 @@ def _short_resolver(
             raise ValueError(f"{label}: short_max_s is for a short-gap network (short=PATH, or the shipped ebd's)")
     if off:
         return lambda motion: None
-    if short is not None:
+    if short != "auto":
         given = _resolver("ebd", short)
         max_s = SHORT_MAX_S if short_max_s is None else float(short_max_s)
         return lambda motion: (given(motion), max_s)
@@ -164,8 +167,26 @@ def _short_resolver(
     return shipped
 
 
+def fill_by_gap_length(
+    mask: np.ndarray,
+    max_frames: float,
+    long_fill: Callable[[], np.ndarray],
+    short_fill: Callable[[], np.ndarray],
+) -> np.ndarray:
+    """``by_gap_length`` computing only the fills it needs: ``long_fill()`` alone when no gap of ``mask [T, C]``
+    (True = missing) is shorter than ``max_frames`` frames, ``short_fill()`` alone when every gap is (each fill
+    ``[T, C]`` keeps the observed samples, so either gives them), both otherwise."""
+    lengths = gap_lengths(mask)
+    short = (lengths > 0) & (lengths < max_frames)
+    if not short.any():
+        return long_fill()
+    if not (mask & ~short).any():
+        return short_fill()
+    return np.where(short, short_fill(), long_fill())
+
+
 def ebd_raw_filler(
-    main: str | None = None, short: str | None = None, short_max_s: float | None = None, mode: str = "sequence"
+    main: str | None = None, short: str | bool | None = "auto", short_max_s: float | None = None, mode: str = "sequence"
 ) -> Callable[[Motion, np.ndarray], np.ndarray]:
     """EBD's own fill as it comes (no blend, no self-check): ``fill(motion, mask [T, C]) -> [T, C]`` degrees, by
     the network ``main`` (a path; default the shipped ``ebd`` of the motion's skeleton) and, for gaps shorter
@@ -180,11 +201,10 @@ def ebd_raw_filler(
         def raw(model: object) -> np.ndarray:
             return clean_channels(model, motion.channels, mask, motion.skeleton, motion.fps, mode, gap_blend=None)
 
-        out = raw(network(motion))
         pair = short_for(motion)
-        if pair is not None:
-            out = by_gap_length(out, raw(pair[0]), mask, pair[1] * motion.fps)
-        return out
+        if pair is None:
+            return raw(network(motion))
+        return fill_by_gap_length(mask, pair[1] * motion.fps, lambda: raw(network(motion)), lambda: raw(pair[0]))
 
     return fill
 
@@ -343,7 +363,7 @@ def _single(method: str):
         rehearse_pool: float | None = None,
         short_pool: int | None = None,
         gate_end: float | None = None,
-        short: str | None = None,
+        short: str | bool | None = "auto",
         short_max_s: float | None = None,
     ):
         """``limit``: EBF's self-check factor (``selfcheck.limit_change``; default: the checkpoint's, 0: off).
@@ -355,8 +375,8 @@ def _single(method: str):
         ``short_pool``: EBD's rehearsal check (``ebd.GapBlend``; default: the checkpoint's blend; ``rehearse=0``:
         off). ``gate_end``: EBD's length gate ends here (s; ``GapBlend.gate_s``
         keeps its start). ``short``: an EBD checkpoint for the gaps shorter than ``short_max_s`` (s), run with the
-        same options (``by_gap_length``); by default the shipped ``ebd``'s own short-gap network when the main one
-        is shipped too, ``off`` for the main network alone (``_short_resolver``)."""
+        same options (``fill_by_gap_length``); ``auto`` (default): the shipped ``ebd``'s own short-gap network when
+        the main one is shipped too; ``off`` (or ``none``): the main network alone (``_short_resolver``)."""
         from mocapnet.nn.ebd import GapBlend, as_blend
         from mocapnet.nn.features import scored_index
         from mocapnet.nn.infer import clean_channels
@@ -364,7 +384,7 @@ def _single(method: str):
         checkpoints = _paths(checkpoints)
         if len(checkpoints) > 1:
             raise ValueError(f"{method} takes one checkpoint, got {len(checkpoints)}")
-        if method != "ebd" and (short is not None or short_max_s is not None):
+        if method != "ebd" and (short != "auto" or short_max_s is not None):
             raise ValueError(f"{method}: short and short_max_s name EBD's short-gap network (ebd only)")
         main = checkpoints[0] if checkpoints else None
         short_for = _short_resolver(main, short, short_max_s) if method == "ebd" else (lambda motion: None)
@@ -440,11 +460,13 @@ def _single(method: str):
             return out
 
         def clean(noisy: Motion, mask: np.ndarray) -> np.ndarray:
-            out = run(resolve(noisy), noisy, mask)
+            def long_fill() -> np.ndarray:
+                return run(resolve(noisy), noisy, mask)
+
             pair = short_for(noisy)
-            if pair is not None:
-                out = by_gap_length(out, run(pair[0], noisy, mask), mask, pair[1] * noisy.fps)
-            return out
+            if pair is None:
+                return long_fill()
+            return fill_by_gap_length(mask, pair[1] * noisy.fps, long_fill, lambda: run(pair[0], noisy, mask))
 
         return clean
 
@@ -464,7 +486,7 @@ def _ebd_ebf(
     context: MethodContext,
     checkpoints: Sequence[str] | str = (),
     mode: str = "sequence",
-    short: str | None = None,
+    short: str | bool | None = "auto",
     short_max_s: float | None = None,
 ):
     from mocapnet.nn.infer import clean_channels

@@ -12,6 +12,10 @@ Checkpoints are data, never code: every load goes through ``read_checkpoint``, w
 extended only by ``ALLOWED_GLOBALS``, numpy scalars) and refuses anything else with ``MocapFileError``. A shipped
 checkpoint is also checked against the SHA-256 recorded for it in ``index.json``.
 
+An ``ebd`` entry may name a short-gap partner, ``"short": {"file": ..., "max_s": ...}``: another shipped EBD of the
+same skeleton and frame rate that fills the gaps shorter than ``max_s`` seconds (``shipped_short``); the partner's
+entry says ``"short_for": FILE`` and serves no method by itself (``variants.serves``).
+
 Export a trained run::
 
     python -m mocapnet.nn.checkpoints RUN/checkpoints/best.ckpt bandai2_ebf --command "python scripts/train.py ..."
@@ -36,7 +40,7 @@ from mocapnet.io.atomic import MocapFileError
 from mocapnet.motion import Skeleton
 from mocapnet.nn import variants
 from mocapnet.nn.features import topology_hash
-from mocapnet.nn.variants import EBF_VARIANTS, serves
+from mocapnet.nn.variants import EBF_VARIANTS, SHORT_MAX_S, serves
 
 CHECKPOINT_DIR = Path(__file__).resolve().parents[1] / "checkpoints"
 INDEX = CHECKPOINT_DIR / "index.json"
@@ -119,15 +123,20 @@ def read_index() -> list[dict[str, Any]]:
     return json.loads(INDEX.read_text())["checkpoints"] if INDEX.exists() else []
 
 
+def _serving_entry(method: str, skeleton: Skeleton) -> dict[str, Any] | None:
+    """The index entry that serves ``method`` for ``skeleton``'s topology (``variants.serves``), or None."""
+    mine = topology_hash(skeleton)
+    return next((e for e in read_index() if serves(e, method) and e["skeleton_hash"] == mine), None)
+
+
 def shipped_checkpoint(method: str, skeleton: Skeleton) -> Path:
     """The shipped checkpoint of ``method`` for ``skeleton``'s topology; LookupError naming this skeleton and
     the shipped ones when there is none."""
+    entry = _serving_entry(method, skeleton)
+    if entry is not None:
+        return CHECKPOINT_DIR / entry["file"]
     mine = topology_hash(skeleton)
-    entries = read_index()
-    for entry in entries:
-        if serves(entry, method) and entry["skeleton_hash"] == mine:
-            return CHECKPOINT_DIR / entry["file"]
-    same = [e for e in entries if serves(e, method)]
+    same = [e for e in read_index() if serves(e, method)]
     shipped = sorted({f"{e['corpus']}: {e['skeleton']} ({e['skeleton_hash']})" for e in same})
     raise LookupError(
         f"no shipped {method!r} checkpoint for this skeleton, {skeleton.describe()} ({mine}); shipped "
@@ -140,11 +149,10 @@ def shipped_short(skeleton: Skeleton) -> tuple[Path, float] | None:
     """The short-gap partner of the shipped ``ebd`` for ``skeleton``'s topology, as (file, longest gap it fills in
     seconds, exclusive): the main entry's ``"short": {"file": ..., "max_s": ...}``; None when it has none or no
     ``ebd`` is shipped for the skeleton."""
-    mine = topology_hash(skeleton)
-    for entry in read_index():
-        if serves(entry, "ebd") and entry["skeleton_hash"] == mine and entry.get("short"):
-            return CHECKPOINT_DIR / entry["short"]["file"], float(entry["short"]["max_s"])
-    return None
+    entry = _serving_entry("ebd", skeleton)  # the entry shipped_checkpoint("ebd", ...) names
+    if entry is None or not entry.get("short"):
+        return None
+    return CHECKPOINT_DIR / entry["short"]["file"], float(entry["short"]["max_s"])
 
 
 def export(
@@ -157,7 +165,7 @@ def export(
     as_ebf: bool = False,
     fp16: bool = False,
     short: str | None = None,
-    short_max_s: float = 0.2,
+    short_max_s: float = SHORT_MAX_S,
 ) -> Path:
     """Slim ``src`` into ``mocapnet/checkpoints/<name>.ckpt`` and record it in ``index.json`` (replacing an
     entry of the same file name) with its SHA-256, ``recipe`` (how it was trained, in words) and ``budget``
@@ -179,15 +187,7 @@ def export(
     if topology_hash(skeleton) != hp["skeleton_hash"]:
         raise ValueError(f"{src}: skeleton hash {hp['skeleton_hash']} does not match corpus {hp['corpus']!r}")
     dst = CHECKPOINT_DIR / f"{name}.ckpt"
-    partner = None
-    if short is not None:
-        partner = next((e for e in read_index() if e["file"] == short and e["file"] != dst.name), None)
-        same = partner is not None and partner["method"] == "ebd" and partner["skeleton_hash"] == hp["skeleton_hash"]
-        if method_of(slim) != "ebd" or not same or not short_max_s > 0:
-            raise ValueError(
-                f"--short {short}: a short-gap partner is a shipped EBD of the same skeleton, for an EBD, with a "
-                f"length > 0 s (this is {method_of(slim)}; shipped: {sorted(e['file'] for e in read_index())})"
-            )
+    _check_export(method_of(slim), hp, dst.name, as_ebf, short, short_max_s)  # before anything is written
     CHECKPOINT_DIR.mkdir(parents=True, exist_ok=True)
     torch.save(slim, dst)
     states = [v for k, v in ckpt.get("callbacks", {}).items() if "ModelCheckpoint" in k]
@@ -216,11 +216,12 @@ def export(
         **(metrics or {}),
     }
     if as_ebf:
-        if entry["method"] not in EBF_VARIANTS:
-            raise ValueError(f"{src}: a {entry['method']} checkpoint cannot serve 'ebf'")
         entry["ebf"] = True
     if short is not None:
         entry["short"] = {"file": short, "max_s": float(short_max_s)}
+    old = next((e for e in read_index() if e["file"] == dst.name), {})
+    if old.get("short_for"):  # re-exported as what it was: another EBD's short-gap partner
+        entry["short_for"] = old["short_for"]
     others = [e for e in read_index() if e["file"] != dst.name]
     for e in others:
         if as_ebf and e["skeleton_hash"] == entry["skeleton_hash"]:
@@ -230,6 +231,44 @@ def export(
     entries = others + [entry]
     INDEX.write_text(json.dumps({"checkpoints": sorted(entries, key=lambda e: e["file"])}, indent=1) + "\n")
     return dst
+
+
+def _check_export(
+    method: str, hp: dict[str, Any], file: str, as_ebf: bool, short: str | None, short_max_s: float
+) -> None:
+    """ValueError when ``export`` of a ``method`` network (hyper-parameters ``hp``) as ``file`` would leave the
+    index wrong or ambiguous: ``as_ebf`` on a network that is no EBF variant, a ``short`` partner that is not a
+    shipped, unpaired EBD of the same skeleton and frame rate (or a length that is not a finite time > 0), or a
+    second network serving ``method`` for the skeleton."""
+    entries = {e["file"]: e for e in read_index()}
+    if as_ebf and method not in EBF_VARIANTS:
+        raise ValueError(f"{file}: a {method} checkpoint cannot serve 'ebf'")
+    if short is not None:
+        partner = entries.get(short) if short != file else None
+        checks = [
+            (method == "ebd", f"this network is {method}, not an EBD"),
+            (partner is not None, "it is not in index.json"),
+            (partner is not None and partner["method"] == "ebd", "it is no EBD"),
+            (partner is not None and partner["skeleton_hash"] == hp["skeleton_hash"], "it is for another skeleton"),
+            (partner is not None and float(partner["fps"]) == float(hp["fps"]), "it is for another frame rate"),
+            (partner is not None and not partner.get("short"), "it has a short-gap network of its own"),
+            (partner is not None and partner.get("short_for") in (None, file), "it is another EBD's partner"),
+            (bool(np.isfinite(short_max_s) and short_max_s > 0), f"short_max_s {short_max_s!r} is not a time > 0 s"),
+        ]
+        problems = [why for ok, why in checks if not ok]
+        if problems:
+            raise ValueError(
+                f"--short {short}: a short-gap partner must be a shipped EBD of this skeleton: {problems[0]}"
+            )
+    if entries.get(file, {}).get("short_for"):  # a partner re-exported stays a partner, serving nothing
+        return
+    for e in entries.values():
+        same = e["method"] == method and e["skeleton_hash"] == hp["skeleton_hash"]
+        if same and e["file"] not in (file, short) and not e.get("short_for"):
+            raise ValueError(
+                f"{file}: index.json already ships {method} for this skeleton as {e['file']}; export under that "
+                "name to replace it (or remove its entry first)"
+            )
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -247,7 +286,9 @@ def main(argv: list[str] | None = None) -> None:
         metavar="FILE",
         help="a shipped EBD (file name, e.g. bandai2_ebd_short.ckpt) that fills this EBD's short gaps",
     )
-    parser.add_argument("--short-max-s", type=float, default=0.2, help="the gaps --short fills: shorter than this (s)")
+    parser.add_argument(
+        "--short-max-s", type=float, default=SHORT_MAX_S, help="the gaps --short fills: shorter than this (s)"
+    )
     args = parser.parse_args(argv)
     options = {"recipe": args.recipe, "budget": args.budget, "as_ebf": args.ebf, "fp16": args.fp16}
     options |= {"short": args.short, "short_max_s": args.short_max_s}

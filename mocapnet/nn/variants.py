@@ -104,6 +104,10 @@ def serves(entry: Mapping[str, Any], method: str) -> bool:
     return entry["method"] == method or (method == "ebf" and bool(entry.get("ebf")))
 
 
+#: Gaps shorter than this (s) go to ``ebd``'s short-gap network (``short=``, or the shipped partner): 0.2 s is
+#: where the default blend's length gate (``ebd.GapBlend.gate_s``) gives the network its full weight.
+SHORT_MAX_S = 0.2
+
 #: How far a clip's frame rate may be from a network's training rate (relative) before it counts as another
 #: rate: the networks' filters and LSTMs count frames, so at another rate they act over another time span.
 FPS_TOLERANCE = 0.01

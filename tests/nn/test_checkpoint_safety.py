@@ -201,12 +201,49 @@ def test_export_pairs_an_ebd_with_its_short_gap_network(tiny, sample, tmp_path, 
         checkpoints.export(save(tiny("ebf-free", sample), tmp_path / "d.ckpt"), "sample_ebf2", short=short.name)
     assert not (tmp_path / "ship" / "sample_ebd.ckpt").exists()
     assert not (tmp_path / "ship" / "sample_ebf2.ckpt").exists()
+    with pytest.raises(ValueError, match="not a time > 0"):
+        checkpoints.export(main_src, "sample_ebd", short=short.name, short_max_s=float("inf"))
+    assert not (tmp_path / "ship" / "sample_ebd.ckpt").exists()
     main = checkpoints.export(main_src, "sample_ebd", short=short.name, short_max_s=0.25)
     entries = {e["file"]: e for e in read_index()}
     assert entries[main.name]["short"] == {"file": short.name, "max_s": 0.25}
     assert entries[short.name]["short_for"] == main.name
     assert checkpoints.shipped_checkpoint("ebd", sample.skeleton) == main
     assert checkpoints.shipped_short(sample.skeleton) == (short, 0.25)
+    # the partner re-exported stays the partner; a second main for the skeleton, or a second pairing, is refused
+    checkpoints.export(save(tiny("ebd", sample), tmp_path / "e.ckpt"), "sample_ebd_short")
+    assert {e["file"]: e for e in read_index()}[short.name]["short_for"] == main.name
+    before = (tmp_path / "ship" / "index.json").read_text()
+    with pytest.raises(ValueError, match="already ships ebd"):
+        checkpoints.export(save(tiny("ebd", sample), tmp_path / "f.ckpt"), "sample_ebd_other")
+    with pytest.raises(ValueError, match="another frame rate"):
+        checkpoints._check_export(
+            "ebd",
+            {"skeleton_hash": entries[main.name]["skeleton_hash"], "fps": 30.0},
+            main.name,
+            False,
+            short.name,
+            0.2,
+        )
+    assert (tmp_path / "ship" / "index.json").read_text() == before
+
+
+def test_the_shipped_index_pairs_are_consistent():
+    """The real ``index.json`` (no torch needed): every file it names exists; at most one entry serves a method
+    for a skeleton; each ``short`` partner exists, points back with ``short_for`` and has the main network's
+    skeleton and frame rate, and a finite length > 0."""
+    entries = {e["file"]: e for e in read_index()}
+    assert all((checkpoints.CHECKPOINT_DIR / f).is_file() for f in entries)
+    serving = [(e["method"], e["skeleton_hash"]) for e in entries.values() if not e.get("short_for")]
+    assert len(serving) == len(set(serving))
+    for e in entries.values():
+        if e.get("short"):
+            partner = entries[e["short"]["file"]]
+            assert e["method"] == partner["method"] == "ebd" and partner["short_for"] == e["file"]
+            assert partner["skeleton_hash"] == e["skeleton_hash"] and partner["fps"] == e["fps"]
+            assert 0 < e["short"]["max_s"] < float("inf")
+        if e.get("short_for"):
+            assert entries[e["short_for"]]["short"]["file"] == e["file"]
 
 
 def test_numpy_scalars_are_allowed_and_arrays_refused(tmp_path):

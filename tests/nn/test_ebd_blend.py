@@ -459,8 +459,11 @@ def test_short_option_fills_each_gap_with_the_network_made_for_its_length(tiny, 
     for bad in (f"ebf:short={path}", f"ebd:short={path},short_max_s=0", f"ebd={path}:short_max_s=0.5"):
         with pytest.raises(ValueError, match="short"):
             build_method(bad)
-    with pytest.raises(ValueError, match="short"):
-        build_method("ebd:short=off,short_max_s=0.5")
+    for off in ("off", "none", "false"):
+        with pytest.raises(ValueError, match="short"):
+            build_method(f"ebd:short={off},short_max_s=0.5")
+    with pytest.raises(ValueError, match="short=PATH"):
+        build_method("ebd:short=0")
     with pytest.raises(ValueError, match="no short-gap network"):  # the CMU skeleton's shipped ebd has none
         build_method("ebd:short_max_s=0.5").clean(motion, mask)
 
@@ -504,6 +507,7 @@ def test_the_shipped_ebd_brings_its_short_gap_network(tiny, sample, tmp_path, mo
     named = build_method(f"ebd={main}:rehearse=0,short={short}").clean(motion, mask)
     alone = build_method("ebd:rehearse=0,short=off").clean(motion, mask)
     np.testing.assert_array_equal(shipped, named)
+    np.testing.assert_array_equal(build_method("ebd:rehearse=0,short=none").clean(motion, mask), alone)
     np.testing.assert_array_equal(alone, build_method(f"ebd={main}:rehearse=0").clean(motion, mask))
     assert np.abs(shipped - alone)[100:112].max() > 1e-3 and np.array_equal(shipped[300:360], alone[300:360])
 
@@ -516,3 +520,30 @@ def test_the_shipped_ebd_brings_its_short_gap_network(tiny, sample, tmp_path, mo
         build_method("ebd+ebf").clean(motion, mask),
         build_method(f"ebd+ebf={main},{ebf}:short={short}").clean(motion, mask),
     )
+
+
+def test_fill_by_gap_length_runs_only_the_networks_it_needs():
+    """No short gap: the long fill alone; only short gaps: the short fill alone; both: ``by_gap_length``."""
+    from mocapnet.methods.neural import by_gap_length, fill_by_gap_length
+
+    channels = smooth_channels(120, 4)
+    calls = []
+
+    def fill(tag: str, offset: float):
+        def run() -> np.ndarray:
+            calls.append(tag)
+            return channels + offset
+
+        return run
+
+    cases = {
+        "long only": gap_mask(channels.shape, [(10, 30, [0])]),
+        "short only": gap_mask(channels.shape, [(10, 13, [0]), (50, 52, [1, 2])]),
+        "both": gap_mask(channels.shape, [(10, 13, [0]), (40, 70, [1])]),
+    }
+    expected_calls = {"long only": ["long"], "short only": ["short"], "both": ["short", "long"]}
+    for name, mask in cases.items():
+        calls.clear()
+        out = fill_by_gap_length(mask, 6, fill("long", 1.0), fill("short", 2.0))
+        assert calls == expected_calls[name], name
+        np.testing.assert_array_equal(out[mask], by_gap_length(channels + 1.0, channels + 2.0, mask, 6)[mask])
