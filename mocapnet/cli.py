@@ -197,6 +197,17 @@ def _train_epilog() -> str:
     )
 
 
+def _at_least_one(text: str) -> int:
+    """argparse type: a whole number >= 1 (a count of clips, repeats or threads)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"a whole number >= 1, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"a whole number >= 1, got {value}")
+    return value
+
+
 def _add_parallel_args(parser: argparse.ArgumentParser) -> None:
     from mocapnet.parallel import JOBQUEUE_HELP
 
@@ -206,7 +217,7 @@ def _add_parallel_args(parser: argparse.ArgumentParser) -> None:
     group.add_argument(
         "--workers", type=int, help="local worker processes (default: one per core; 0 = in this process)"
     )
-    parser.add_argument("--threads", type=int, help="torch/BLAS threads per worker process (default 1)")
+    parser.add_argument("--threads", type=_at_least_one, help="torch/BLAS threads per worker process (default 1)")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -233,10 +244,10 @@ def build_parser() -> argparse.ArgumentParser:
         help="corruption name (repeatable: one table each; default angular-0.5)",
     )
     ev.add_argument("--method", action="append", help="method (repeatable); default: noisy + Gaussians")
-    ev.add_argument("--repeats", type=int, default=5, help="corrupted copies per clip (default 5)")
+    ev.add_argument("--repeats", type=_at_least_one, default=5, help="corrupted copies per clip (default 5)")
     ev.add_argument("--fold", type=int, default=None, help="score only this fold's test clips (0-4)")
     ev.add_argument("--style", help="score only clips of this style label (Bandai names), e.g. elderly")
-    ev.add_argument("--limit", type=int, default=None, help="use only the first N files (quick runs)")
+    ev.add_argument("--limit", type=_at_least_one, default=None, help="use only the first N files (quick runs)")
     ev.add_argument("--csv", help="write one row per (method, corruption, file, repeat)")
     ev.add_argument("--markdown", help="write the summary table as markdown")
     ev.add_argument(

@@ -245,3 +245,19 @@ def test_test_only_corpus_tunes_its_gaussian_reference_elsewhere():
     ev = Evaluation("bandai1", "angular-0.5", "angles", [r["method"] for r in rows], rows)
     ratios = {e["method"]: e["ratio"] for e in summarize(ev)}
     assert ratios["gaussian-tuned:tune_on=bandai2"] == 1.0 and ratios["mine"] == 1.2 / 1.5
+
+
+@pytest.mark.parametrize("bad", [["--limit", "0"], ["--repeats", "-2"], ["--threads", "0"], ["--limit", "x"]])
+def test_cli_counts_below_one_are_refused_by_name(bad, capsys):
+    """A count of clips, repeats or threads below 1 is a usage error naming the option (was: an empty table, or
+    "list index out of range")."""
+    with pytest.raises(SystemExit) as stop:
+        main(["evaluate", "--data", "sample", "--corruption", "gaps", "--method", "lerp", "--quiet", *bad])
+    assert stop.value.code == 2
+    assert f"argument {bad[0]}: a whole number >= 1" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("bad", [{"repeats": 0}, {"limit": 0}, {"repeats": 1.5}])
+def test_evaluate_refuses_counts_below_one(bad):
+    with pytest.raises(ValueError, match=f"{next(iter(bad))} must be a whole number >= 1"):
+        evaluate("sample", "gaps", ["lerp"], **{"repeats": 1, **bad}, progress=False)

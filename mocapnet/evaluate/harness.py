@@ -350,6 +350,9 @@ def evaluate(
     ``mocapnet.parallel.Parallel``) scores clips on Dask workers; the rows are the same as in this process
     (default) but for the ``seconds`` column.
     """
+    for name, value in (("repeats", repeats), ("limit", limit)):
+        if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 1):
+            raise ValueError(f"{name} must be a whole number >= 1, got {value!r}")
     corruption = Corruption.parse(corruption)
     specs = [MethodSpec.parse(m) for m in methods]
     asked = [str(s) for s in specs]
