@@ -1,6 +1,7 @@
 """EBD against lerp and spline, per corruption and per gap-length bin (issue 11), and the tuning of its blend.
 
-    python scripts/bench_ebd.py --corpus bandai1                   # benchmarks/results/neural_gaps_bandai1.{md,json}
+    python scripts/bench_ebd.py --corpus bandai1                   # results/neural_gaps_bandai1.{md,json,png}
+    python scripts/bench_ebd.py --corpus bandai1 --replot          # redraw the PNG from the JSON
     python scripts/bench_ebd.py --corpus bandai2 --clips 150 --repeats 2
     python scripts/bench_ebd.py --tune                             # bandai2 fold 1: candidates of ebd.GAP_BLEND
     python scripts/bench_ebd.py --compare clip=a.ckpt --compare corpus=b.ckpt --split style:elderly --clips 84
@@ -22,7 +23,7 @@ from pathlib import Path
 
 from mocapnet.evaluate import gap_bins
 from mocapnet.evaluate.neural_bench import split_arg, split_clips
-from mocapnet.evaluate.results import write_results
+from mocapnet.evaluate.results import read_json, write_results
 from mocapnet.threads import pin_threads
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -53,6 +54,9 @@ def main() -> None:
         "--split", type=split_arg, default="val", help="--compare's clips: val (fold 1) or style:NAME (default val)"
     )
     parser.add_argument("--out", default=None, help="path without suffix")
+    parser.add_argument(
+        "--replot", action="store_true", help="redraw the PNG of an existing test result (--corpus / --out) and stop"
+    )
     args = parser.parse_args()
     checkpoints = dict(c.split("=", 1) for c in args.compare if "=" in c)
     labels_ok = all(label and not set(label) & set(":/,") for label in checkpoints)
@@ -75,6 +79,9 @@ def main() -> None:
     corpus = args.corpus or "bandai1"
     name = "neural_gaps_tune" if args.tune else f"neural_gaps_{corpus}"
     out = Path(args.out or ROOT / "benchmarks" / "results" / name)
+    if args.replot:
+        gap_bins.plot(read_json(out.with_name(out.name + ".json")), out.with_name(out.name + ".png"))
+        return
     result = (
         gap_bins.tune(args.repeats or 2, args.checkpoint, args.grid)
         if args.tune
@@ -82,6 +89,8 @@ def main() -> None:
     )
     result["command"] = command
     write_results(out, result, gap_bins.tune_markdown(result) if args.tune else gap_bins.markdown(result), indent=1)
+    if not args.tune:
+        gap_bins.plot(result, out.with_name(out.name + ".png"))
 
 
 if __name__ == "__main__":

@@ -77,3 +77,24 @@ def test_compare_scores_each_network_blended_and_raw_and_selects_among_the_blend
     assert [k for k in TUNE if k in result["scores"]["a"]] == [k for k in TUNE if k != "gaps-long"]
     result |= {"command": "x", "split": "sample"}
     assert "| a raw |" in compare_markdown(result)
+
+
+def test_plot_draws_one_row_per_corruption_and_bin(tmp_path):
+    """``gap_bins.plot`` writes a PNG whose height grows with the rows (headline corruptions + bins)."""
+    import struct
+
+    from mocapnet.evaluate.gap_bins import plot
+
+    def row(**extra):
+        return {"lerp": 2.0, "spline": 4.0, "ebd-raw": 3.0, "ebd": 1.5, **extra}
+
+    result = {"corpus": "toy", "names": ["lerp", "spline", "ebd-raw", "ebd"], "headline": [row(corruption="gaps")]}
+    heights = []
+    for n_bins in (1, 6):
+        result["bins"] = [row(corruption="gaps", bin=f"{k}", gaps=k + 1) for k in range(n_bins)]
+        path = tmp_path / f"bins{n_bins}.png"
+        plot(result, path)
+        head = path.read_bytes()[:24]
+        assert head[:8] == b"\x89PNG\r\n\x1a\n"
+        heights.append(struct.unpack(">I", head[20:24])[0])
+    assert heights[1] - heights[0] == pytest.approx(5 * 0.38 * 110, abs=2)

@@ -10,6 +10,7 @@ figures here equal the harness's ``gap_err_deg``.
 from __future__ import annotations
 
 import dataclasses
+import os
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 
@@ -314,6 +315,35 @@ def markdown(result: dict) -> str:
         ([b["corruption"], b["bin"], b["gaps"], *scores(b)] for b in result["bins"]),
     )
     return "\n".join(lines) + "\n"
+
+
+def plot(result: dict, path: str | os.PathLike) -> None:
+    """``test``'s result as a PNG at ``path``: per corruption and per gap-length bin, the gap error of ``ebd`` and
+    of ``ebd-raw`` divided by the better of lerp and spline (bars; left of the line at 1 beats both)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = [(r["corruption"], r) for r in result["headline"]]
+    rows += [(f"{b['corruption']}  {b['bin']} frames ({b['gaps']} gaps)", b) for b in result["bins"]]
+    learned = [n for n in ("ebd", "ebd-raw") if n in result["names"]]
+    ratios = {n: [r[n] / min(r[m] for m in REFERENCES) for _, r in rows] for n in learned}
+    y = np.arange(len(rows))
+    fig, ax = plt.subplots(figsize=(8.5, 0.38 * len(rows) + 1.6))
+    height = 0.8 / len(learned)
+    for k, name in enumerate(learned):
+        bars = ax.barh(y + (k - (len(learned) - 1) / 2) * height, ratios[name], height, label=name)
+        ax.bar_label(bars, fmt="%.3f", fontsize=7, padding=2)
+    ax.axvline(1.0, color="black", linewidth=1)
+    ax.set_yticks(y, [label for label, _ in rows], fontsize=8)
+    ax.invert_yaxis()
+    ax.set_xlabel("gap error ÷ the better of lerp and spline (< 1: better than both)")
+    ax.set_title(f"EBD gap filling, {result['corpus']} fold 0", fontsize=10)
+    ax.legend(loc="lower right", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
 
 
 def tune_markdown(result: dict) -> str:
