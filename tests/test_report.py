@@ -25,3 +25,26 @@ def test_evaluation_section(tmp_path, plot):
     assert lines[-1] == "- skipped clip9: too short"
     assert ("![error per motion](x_angular-0.5.png)" in lines) == plot
     assert (tmp_path / "x_angular-0.5.png").exists() == plot
+
+
+def test_plot_ratios_draws_named_methods_and_refuses_an_ambiguous_name(tmp_path):
+    """``plot_ratios``: one panel per corpus; ``ebf-paper`` matches ``ebf-paper=run.ckpt`` when that is the only
+    such string; two strings of one name must be named exactly; a name absent from every row is an error."""
+    from mocapnet.evaluate.report import plot_ratios
+
+    def row(corpus, corruption, method, ratio):
+        return {"corpus": corpus, "corruption": corruption, "method": method, "ratio": ratio}
+
+    rows = [
+        row(c, k, m, r)
+        for c in ("bandai2", "bandai1")
+        for k in ("angular-0.5", "spatial-0.5cm")
+        for m, r in (("ebf", 0.85), ("ebf-paper=run.ckpt", 0.9), ("gaussian-58ms", 1.0))
+    ]
+    out = tmp_path / "ratios.png"
+    plot_ratios(rows, ["ebf", "ebf-paper"], out, "t")
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    with pytest.raises(ValueError, match="several method strings"):
+        plot_ratios([*rows, row("bandai1", "angular-0.5", "ebf-paper=other.ckpt", 0.8)], ["ebf-paper"], out)
+    with pytest.raises(ValueError, match="none of"):
+        plot_ratios(rows, ["knn"], out)

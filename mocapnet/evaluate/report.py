@@ -164,3 +164,66 @@ def plot_per_motion(ev: Evaluation, path: str | os.PathLike, title: str = "") ->
     with atomic_output(Path(path)) as tmp:
         fig.savefig(tmp, dpi=110, format="png")
     plt.close(fig)
+
+
+def _drawn_as(method: str, wanted: list[str], rows: list[dict]) -> str:
+    """The name of ``wanted`` a results row of ``method`` is drawn under: its own, or its method name without the
+    checkpoint and options (``ebf-paper=run.ckpt`` as ``ebf-paper``) when no row has that name exactly and only
+    one method string of the rows has that base; else ``method`` itself (not drawn)."""
+    if method in wanted:
+        return method
+    base = MethodSpec.parse(method).name
+    if base in wanted and not any(r["method"] == base for r in rows):
+        same = {r["method"] for r in rows if MethodSpec.parse(r["method"]).name == base}
+        if len(same) > 1:
+            raise ValueError(f"{base}: several method strings in the results ({sorted(same)}): name one exactly")
+        return base
+    return method
+
+
+def plot_ratios(rows: list[dict], methods: list[str], path: str | os.PathLike, title: str = "") -> None:
+    """The ratio column of ``bench_neural`` results (each row a summary with ``corpus``, ``corruption``,
+    ``method``, ``ratio``) as a PNG: one panel per corpus, one group of bars per corruption, one bar per method
+    of ``methods`` found (a vertical line at 1: the best reference baseline); a method with several rows for one
+    corpus and corruption is drawn from the first; a name matches a method string with a checkpoint when that
+    string is the only one of its name (``_drawn_as``). Corruptions without a ratio (clean input) are left out."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    ratio: dict[tuple[str, str, str], float] = {}
+    for r in rows:  # a method scored in several files: the first row counts
+        ratio.setdefault((r["corpus"], r["corruption"], _drawn_as(r["method"], methods, rows)), r["ratio"])
+    corpora = list(dict.fromkeys(r["corpus"] for r in rows))
+    found = [m for m in methods if any(k[2] == m for k in ratio)]
+    if not found:
+        raise ValueError(f"none of {methods} is in the results (methods there: {sorted({k[2] for k in ratio})})")
+    panels = []
+    for corpus in corpora:
+        corruptions = [
+            c
+            for c in dict.fromkeys(r["corruption"] for r in rows if r["corpus"] == corpus)
+            if any(np.isfinite(ratio.get((corpus, c, m), np.nan)) for m in found)
+        ]
+        panels.append((corpus, corruptions))
+    n_rows = max(len(c) for _, c in panels)
+    fig, axes = plt.subplots(1, len(panels), figsize=(4.6 * len(panels), 0.42 * n_rows * len(found) / 2 + 1.8))
+    for ax, (corpus, corruptions) in zip(np.atleast_1d(axes), panels):
+        y = np.arange(len(corruptions))
+        height = 0.8 / len(found)
+        for k, m in enumerate(found):
+            values = [ratio.get((corpus, c, m), np.nan) for c in corruptions]
+            bars = ax.barh(y + (k - (len(found) - 1) / 2) * height, values, height, label=m)
+            ax.bar_label(bars, fmt="%.3f", fontsize=6, padding=2)
+        ax.axvline(1.0, color="black", linewidth=1)
+        ax.set_yticks(y, corruptions, fontsize=8)
+        ax.invert_yaxis()
+        ax.set_title(corpus, fontsize=10)
+        ax.set_xlabel("error ÷ the best reference baseline", fontsize=8)
+    np.atleast_1d(axes)[-1].legend(loc="lower right", fontsize=7)
+    if title:
+        fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
