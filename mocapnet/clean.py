@@ -73,6 +73,8 @@ def read_mask(path: str | os.PathLike, motion) -> np.ndarray:
     Returns a bool ``[T, C]`` mask (True = missing). Anything else (floats, NaN, strings, objects, an empty
     array, a pickle, an ``.npz`` archive) raises ``MocapFileError`` naming the file.
     """
+    if not Path(path).is_file():
+        raise MocapFileError(f"{path}: no such mask file")
     try:
         raw = np.load(path, allow_pickle=False)
     except (OSError, ValueError, EOFError) as exc:

@@ -55,6 +55,8 @@ def test_pickled_and_npz_masks_are_refused(tmp_path, short_motion):
     not_numpy.write_text("True False")
     with pytest.raises(MocapFileError, match="not a NumPy"):
         read_mask(not_numpy, short_motion)
+    with pytest.raises(MocapFileError, match="absent.npy: no such mask file"):
+        read_mask(tmp_path / "absent.npy", short_motion)
 
 
 def test_bool_and_01_masks_in_both_shapes(tmp_path, short_motion):
