@@ -58,6 +58,8 @@ def main() -> None:
         "--replot", action="store_true", help="redraw the PNG of an existing test result (--corpus / --out) and stop"
     )
     args = parser.parse_args()
+    if args.replot and (args.tune or args.compare):
+        parser.error("--replot redraws a test result (--corpus, --out): not with --tune or --compare")
     checkpoints = dict(c.split("=", 1) for c in args.compare if "=" in c)
     labels_ok = all(label and not set(label) & set(":/,") for label in checkpoints)
     if len(checkpoints) != len(args.compare) or not labels_ok or not all(checkpoints.values()):
@@ -80,7 +82,10 @@ def main() -> None:
     name = "neural_gaps_tune" if args.tune else f"neural_gaps_{corpus}"
     out = Path(args.out or ROOT / "benchmarks" / "results" / name)
     if args.replot:
-        gap_bins.plot(read_json(out.with_name(out.name + ".json")), out.with_name(out.name + ".png"))
+        stored = out.with_name(out.name + ".json")
+        if not stored.is_file():
+            parser.error(f"--replot: {stored} not found; run without --replot first")
+        gap_bins.plot(read_json(stored), out.with_name(out.name + ".png"))
         return
     result = (
         gap_bins.tune(args.repeats or 2, args.checkpoint, args.grid)

@@ -4,6 +4,7 @@
         benchmarks/results/gaussian_cv_joined_bandai2_s24.json benchmarks/results/neural_noise_bandai2.json \
         benchmarks/results/neural_r2_bandai1_s24.json benchmarks/results/gaussian_cv_joined_bandai1_s24.json \
         benchmarks/results/neural_noise_bandai1.json --method ebf --method gaussian-cv --method ebf-paper \
+        --title "Shipped ebf (R2) vs gaussian-cv and a short ebf-paper run, ratio to the best of 3 Gaussians" \
         --out benchmarks/results/ebf_transfer.png
 
 A method scored in several files (same corpus and corruption) is drawn from the first file that has it.

@@ -48,3 +48,18 @@ def test_plot_ratios_draws_named_methods_and_refuses_an_ambiguous_name(tmp_path)
         plot_ratios([*rows, row("bandai1", "angular-0.5", "ebf-paper=other.ckpt", 0.8)], ["ebf-paper"], out)
     with pytest.raises(ValueError, match="none of"):
         plot_ratios(rows, ["knn"], out)
+
+
+def test_a_base_name_is_matched_within_each_corpus():
+    """bandai2's exact ``gaussian-tuned`` does not hide bandai1's ``gaussian-tuned:tune_on=bandai2``."""
+    from mocapnet.evaluate.report import _drawn_as
+
+    bandai1 = [
+        {"corpus": "bandai1", "method": "gaussian-tuned:tune_on=bandai2"},
+        {"corpus": "bandai1", "method": "ebf"},
+    ]
+    assert _drawn_as("gaussian-tuned:tune_on=bandai2", ["gaussian-tuned"], bandai1) == "gaussian-tuned"
+    with_exact = [*bandai1, {"corpus": "bandai1", "method": "gaussian-tuned"}]
+    assert (
+        _drawn_as("gaussian-tuned:tune_on=bandai2", ["gaussian-tuned"], with_exact) == "gaussian-tuned:tune_on=bandai2"
+    )

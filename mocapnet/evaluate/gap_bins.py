@@ -13,6 +13,7 @@ import dataclasses
 import os
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -21,6 +22,7 @@ from mocapnet.corrupt import corrupt_motion, seed_for
 from mocapnet.evaluate.metrics import gap_err_deg, wrapped_diff
 from mocapnet.evaluate.results import markdown_table
 from mocapnet.fill import gap_list
+from mocapnet.io.atomic import atomic_output
 from mocapnet.motion import Motion
 
 #: Gap-length bins in frames, inclusive (issue 11: ≤ 5, 5–15, 15–30, 30–60, > 60).
@@ -342,7 +344,8 @@ def plot(result: dict, path: str | os.PathLike) -> None:
     ax.set_title(f"EBD gap filling, {result['corpus']} fold 0", fontsize=10)
     ax.legend(loc="lower right", fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    with atomic_output(Path(path)) as tmp:
+        fig.savefig(tmp, dpi=110, format="png")
     plt.close(fig)
 
 

@@ -7,6 +7,7 @@ joint positions and are taken back to angles by IK. A folder of C3D files is sco
 
 from __future__ import annotations
 
+import operator
 import time
 import warnings
 from collections.abc import Callable, Sequence
@@ -351,7 +352,13 @@ def evaluate(
     (default) but for the ``seconds`` column.
     """
     for name, value in (("repeats", repeats), ("limit", limit)):
-        if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 1):
+        if value is None:
+            continue
+        try:
+            whole = operator.index(value) if not isinstance(value, bool) else 0
+        except TypeError:
+            whole = 0
+        if whole < 1:
             raise ValueError(f"{name} must be a whole number >= 1, got {value!r}")
     corruption = Corruption.parse(corruption)
     specs = [MethodSpec.parse(m) for m in methods]

@@ -168,8 +168,8 @@ def plot_per_motion(ev: Evaluation, path: str | os.PathLike, title: str = "") ->
 
 def _drawn_as(method: str, wanted: list[str], rows: list[dict]) -> str:
     """The name of ``wanted`` a results row of ``method`` is drawn under: its own, or its method name without the
-    checkpoint and options (``ebf-paper=run.ckpt`` as ``ebf-paper``) when no row has that name exactly and only
-    one method string of the rows has that base; else ``method`` itself (not drawn)."""
+    checkpoint and options (``ebf-paper=run.ckpt`` as ``ebf-paper``) when no row of ``rows`` (one corpus's) has
+    that name exactly and only one method string of them has that base; else ``method`` itself (not drawn)."""
     if method in wanted:
         return method
     base = MethodSpec.parse(method).name
@@ -194,7 +194,8 @@ def plot_ratios(rows: list[dict], methods: list[str], path: str | os.PathLike, t
 
     ratio: dict[tuple[str, str, str], float] = {}
     for r in rows:  # a method scored in several files: the first row counts
-        ratio.setdefault((r["corpus"], r["corruption"], _drawn_as(r["method"], methods, rows)), r["ratio"])
+        same_corpus = [q for q in rows if q["corpus"] == r["corpus"]]
+        ratio.setdefault((r["corpus"], r["corruption"], _drawn_as(r["method"], methods, same_corpus)), r["ratio"])
     corpora = list(dict.fromkeys(r["corpus"] for r in rows))
     found = [m for m in methods if any(k[2] == m for k in ratio)]
     if not found:
@@ -208,7 +209,9 @@ def plot_ratios(rows: list[dict], methods: list[str], path: str | os.PathLike, t
         ]
         panels.append((corpus, corruptions))
     n_rows = max(len(c) for _, c in panels)
-    fig, axes = plt.subplots(1, len(panels), figsize=(4.6 * len(panels), 0.42 * n_rows * len(found) / 2 + 1.8))
+    fig, axes = plt.subplots(
+        1, len(panels), figsize=(4.6 * len(panels), 0.42 * n_rows * len(found) / 2 + 1.8), sharex=True
+    )
     for ax, (corpus, corruptions) in zip(np.atleast_1d(axes), panels):
         y = np.arange(len(corruptions))
         height = 0.8 / len(found)
@@ -225,5 +228,6 @@ def plot_ratios(rows: list[dict], methods: list[str], path: str | os.PathLike, t
     if title:
         fig.suptitle(title, fontsize=10)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    with atomic_output(Path(path)) as tmp:
+        fig.savefig(tmp, dpi=110, format="png")
     plt.close(fig)
