@@ -155,11 +155,16 @@ class Corpus:
     skipped: list[tuple[str, str]] = field(default_factory=list)
 
     def split(
-        self, fold: int, holdout_style: str | None = None, time_split: tuple[float, float] = TIME_SPLIT
+        self,
+        fold: int,
+        holdout_style: str | None = None,
+        time_split: tuple[float, float] = TIME_SPLIT,
+        holdout_content: str | None = None,
     ) -> tuple[list[Motion], list[Motion], list[Motion]]:
         """``(train, validation, test)`` for ``fold``: test = fold k, validation = fold k+1 mod 5, train =
         the other three. ``holdout_style`` (e.g. ``"elderly"``) removes every clip of that style from train
-        and validation, for the unseen-style check (score it with ``style_clips``).
+        and validation, for the unseen-style check (score it with ``style_clips``); ``holdout_content`` (e.g.
+        ``"run"``) every clip of that content, for the unseen-content check (``content_clips``).
 
         A corpus of a single clip (``cmu120``, ``sample``) is split in time instead, whatever the fold: by
         default the first 70 % of its frames train, the next 15 % validate, the last 15 % test (``time_split``
@@ -172,9 +177,14 @@ class Corpus:
         if holdout_style is not None and not self.style_clips(holdout_style):
             styles = sorted({style_label(m.name) for m in self.motions})
             raise ValueError(f"{self.name}: no clip of style {holdout_style!r}; styles: {', '.join(styles)}")
+        if holdout_content is not None and not self.content_clips(holdout_content):
+            contents = sorted({content_label(m.name) for m in self.motions})
+            raise ValueError(f"{self.name}: no clip of content {holdout_content!r}; contents: {', '.join(contents)}")
         val_fold = (fold + 1) % N_FOLDS
 
         def learnable(m: Motion) -> bool:
+            if holdout_content is not None and content_label(m.name) == holdout_content:
+                return False
             return holdout_style is None or style_label(m.name) != holdout_style
 
         train = [m for m in self.motions if self.folds[m.name] not in (fold, val_fold) and learnable(m)]
@@ -185,6 +195,10 @@ class Corpus:
     def style_clips(self, style: str) -> list[Motion]:
         """Every clip of one style label (Bandai file names ``dataset-N_{content}_{style}_{id}``)."""
         return [m for m in self.motions if style_label(m.name) == style]
+
+    def content_clips(self, content: str) -> list[Motion]:
+        """Every clip of one content label (``content_label``: Bandai's ``{content}``, e.g. ``run``)."""
+        return [m for m in self.motions if content_label(m.name) == content]
 
     @property
     def n_frames(self) -> int:

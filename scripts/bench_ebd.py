@@ -12,7 +12,8 @@ its short-gap partner's on the gaps shorter than 0.2 s). ``--checkpoint PATH[:sh
 (and partner) instead. ``--tune`` scores blend
 settings on bandai2 fold 1 (the validation fold; bandai1 is never tuned on) with ``gap_bins.ratios``.
 ``--compare`` scores EBD networks (each with the shipped blend, and raw) on a selection set: bandai2 fold 1
-(``--split val``) or the clips of a style the networks were trained without (``--split style:NAME``).
+(``--split val``) or the clips of a style or content the networks were trained without (``--split style:NAME``,
+``--split content:NAME``).
 """
 
 from __future__ import annotations
@@ -51,7 +52,10 @@ def main() -> None:
         help="score this EBD checkpoint (CKPT[:OPTIONS], e.g. a.ckpt:rehearse=2) on --split (repeatable; bandai2 only)",
     )
     parser.add_argument(
-        "--split", type=split_arg, default="val", help="--compare's clips: val (fold 1) or style:NAME (default val)"
+        "--split",
+        type=split_arg,
+        default="val",
+        help="--compare's clips: val (fold 1), style:NAME or content:NAME (outside fold 0; default val)",
     )
     parser.add_argument("--out", default=None, help="path without suffix")
     parser.add_argument(

@@ -50,8 +50,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         type=bench.split_arg,
         default="test",
         help="fold-0 test clips (test), fold-1 clips for selection (val; fast: the same, the clips with the most "
-        "fast movement first, --clips N takes the first N), or every clip of one style "
-        "(style:NAME, for models trained with data.holdout_style=NAME)",
+        "fast movement first, --clips N takes the first N), or every clip of one style or content outside fold 0 "
+        "(style:NAME / content:NAME, for models trained with data.holdout_style=NAME / data.holdout_content=NAME)",
     )
     parser.add_argument(
         "--select", action="store_true", help=f"selection score: mean ratio over {', '.join(bench.SELECTION)}"

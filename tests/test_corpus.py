@@ -82,3 +82,25 @@ def test_holdout_style(tmp_path, monkeypatch, bandai):
     assert len(corpus.style_clips("elderly")) == 10
     with pytest.raises(ValueError, match="no clip of style 'tired'"):
         corpus.split(0, holdout_style="tired")
+
+
+def test_holdout_content(tmp_path, monkeypatch, bandai):
+    """``holdout_content`` leaves every clip of one content out of train and validation (alone or with a style)."""
+    monkeypatch.setenv("MOCAPNET_CACHE", str(tmp_path / "cache"))
+    folder = tmp_path / "contents"
+    folder.mkdir()
+    for content in ("walk", "run"):
+        for style in ("normal", "elderly"):
+            for i in range(5):
+                (folder / f"dataset-2_{content}_{style}_{i:03d}.bvh").write_text(format_bvh(bandai))
+    corpus = load_corpus(folder, progress=False)
+    assert len(corpus.content_clips("run")) == 10
+    train, val, test = corpus.split(0, holdout_content="run")
+    assert train and all("_run_" not in m.name for m in train + val)
+    assert any("_run_" in m.name for m in corpus.motions if corpus.folds[m.name] == 0) == any(
+        "_run_" in m.name for m in test
+    )
+    both, _, _ = corpus.split(0, holdout_style="elderly", holdout_content="run")
+    assert both and all("_walk_normal_" in m.name for m in both)
+    with pytest.raises(ValueError, match="no clip of content 'kick'; contents: run, walk"):
+        corpus.split(0, holdout_content="kick")

@@ -52,6 +52,9 @@ FAST_SIGMA_S = 0.058
 #: Prefix of the unseen-style split (``"style:elderly"``): every clip of one style, for models trained with
 #: ``data.holdout_style`` set to it (a transfer check inside bandai2; bandai1 stays the test).
 STYLE_SPLIT = "style:"
+#: Prefix of the unseen-content split (``"content:run"``): every clip of one content outside fold 0, for models
+#: trained with ``data.holdout_content`` set to it (bandai1's contents are mostly ones bandai2 never shows).
+CONTENT_SPLIT = "content:"
 
 
 def split_arg(split: str) -> str:
@@ -63,10 +66,14 @@ def split_arg(split: str) -> str:
 
 
 def check_split(split: str) -> str:
-    """``split`` if it is ``"test"``, ``"val"``, ``"fast"`` or ``"style:NAME"``, else ``ValueError``."""
-    if split in SPLITS or (split.startswith(STYLE_SPLIT) and len(split) > len(STYLE_SPLIT)):
+    """``split`` if it is ``"test"``, ``"val"``, ``"fast"``, ``"style:NAME"`` or ``"content:NAME"``, else
+    ``ValueError``."""
+    if split in SPLITS or any(split.startswith(p) and len(split) > len(p) for p in (STYLE_SPLIT, CONTENT_SPLIT)):
         return split
-    raise ValueError(f"split must be one of {SPLITS} or {STYLE_SPLIT}NAME (e.g. style:elderly), got {split!r}")
+    raise ValueError(
+        f"split must be one of {SPLITS}, {STYLE_SPLIT}NAME (e.g. style:elderly) or {CONTENT_SPLIT}NAME (e.g. "
+        f"content:run), got {split!r}"
+    )
 
 
 def shipped_variants(motion: Motion) -> list[str]:
@@ -105,18 +112,20 @@ def split_clips(name: str, split: str, n_clips: int | None):
     clips (``"val"``, bandai2-style corpora only; ``"fast"``: the same ordered by ``fast_motion``, most first, and
     ``n_clips`` takes the first), or the clips of one style outside the fold-0 test clips
     (``"style:NAME"``, for models trained with ``holdout_style=NAME``; the training clips are fold 0's without
-    that style, which ``gaussian-tuned`` is tuned on; ValueError when there is none); ``n_clips`` of them
-    (``subset``)."""
+    that style, which ``gaussian-tuned`` is tuned on; ValueError when there is none), or likewise the clips of one
+    content (``"content:NAME"``, for ``holdout_content=NAME``); ``n_clips`` of them (``subset``)."""
     check_split(split)
     corpus = load_corpus(name, progress=False)
-    if split.startswith(STYLE_SPLIT):
-        style = split[len(STYLE_SPLIT) :]
-        train, _, test = corpus.split(0, holdout_style=style)
-        held_out = {m.name for m in test}
-        clips = [m for m in corpus.style_clips(style) if m.name not in held_out]
-        if not clips:
-            raise ValueError(f"{name}: no clip of style {style!r} outside the fold-0 test clips")
-        return corpus, gap_bins_module.subset(clips, n_clips), train
+    for prefix, kind in ((STYLE_SPLIT, "style"), (CONTENT_SPLIT, "content")):
+        if split.startswith(prefix):
+            label = split[len(prefix) :]
+            train, _, test = corpus.split(0, **{f"holdout_{kind}": label})
+            held_out = {m.name for m in test}
+            labelled = corpus.style_clips(label) if kind == "style" else corpus.content_clips(label)
+            clips = [m for m in labelled if m.name not in held_out]
+            if not clips:
+                raise ValueError(f"{name}: no clip of {kind} {label!r} outside the fold-0 test clips")
+            return corpus, gap_bins_module.subset(clips, n_clips), train
     train, val, test = corpus.split(0)
     if split == "fast":
         ranked = sorted(val, key=fast_motion, reverse=True)

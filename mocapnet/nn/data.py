@@ -115,12 +115,13 @@ def corpus_splits(
     time_split: Sequence[float] = (0.7, 0.15),
     limit: int | None = None,
     holdout_style: str | None = None,
+    holdout_content: str | None = None,
 ) -> tuple[list[Motion], list[Motion], list[Motion]]:
     """``(train, val, test)`` lists of Motion for a corpus: its fold split (without the clips of
-    ``holdout_style``, for the unseen-style check), or the time split of its only clip
-    (``mocapnet.corpus.Corpus.split``)."""
+    ``holdout_style`` or ``holdout_content``, for the unseen-style and unseen-content checks), or the time split of
+    its only clip (``mocapnet.corpus.Corpus.split``)."""
     corpus_ = load_corpus(corpus, progress=False, limit=limit)
-    return corpus_.split(fold, holdout_style, (time_split[0], time_split[1]))
+    return corpus_.split(fold, holdout_style, (time_split[0], time_split[1]), holdout_content)
 
 
 def corrupt_window(
@@ -317,6 +318,7 @@ class MotionDataModule(L.LightningDataModule):
         spline_max_s: float = 0.0,
         mirror: bool = False,
         num_workers: int = 0,
+        holdout_content: str | None = None,
     ) -> None:
         super().__init__()
         if isinstance(num_workers, bool) or not isinstance(num_workers, int) or num_workers < 0:
@@ -335,7 +337,7 @@ class MotionDataModule(L.LightningDataModule):
         if self.train_clips:
             return
         hp = self.hparams
-        train, val, _ = corpus_splits(hp.corpus, hp.fold, hp.time_split, hp.limit, hp.holdout_style)
+        train, val, _ = corpus_splits(hp.corpus, hp.fold, hp.time_split, hp.limit, hp.holdout_style, hp.holdout_content)
         if not train or not val:
             raise ValueError(f"corpus {hp.corpus!r} fold {hp.fold}: empty training or validation split")
         if hp.mirror:

@@ -101,6 +101,25 @@ def test_style_split_scores_only_that_style_and_tunes_without_it(monkeypatch):
         bench.split_clips("fake", "style:elderly", 4)
 
 
+def test_content_split_scores_only_that_content_and_tunes_without_it(monkeypatch):
+    """``content:NAME`` scores clips of that content outside fold 0; the training clips hold none of it."""
+    from mocapnet.corpus import Corpus
+    from mocapnet.evaluate.bvh_bench import synthetic
+
+    base = synthetic(4, chain=True)
+    names = [f"dataset-2_{c}_normal_{i:03d}" for c in ("run", "walk", "wave-left-hand") for i in range(10)]
+    motions = [type(base)(base.skeleton, base.channels, base.fps, n) for n in names]
+    corpus = Corpus("fake", Path("."), motions, {n: i % 5 for i, n in enumerate(names)})
+    monkeypatch.setattr(bench, "load_corpus", lambda name, progress: corpus)
+    assert bench.check_split("content:run") == "content:run"
+    _, clips, train = bench.split_clips("fake", "content:run", 4)
+    assert len(clips) == 4 and all("_run_" in m.name for m in clips)
+    assert all(corpus.folds[m.name] != 0 for m in clips)
+    assert train and not any("_run_" in m.name for m in train)
+    with pytest.raises(ValueError, match="content:NAME"):
+        bench.check_split("content:")
+
+
 def test_fast_split_is_fold_1_with_the_most_fast_movement_first(monkeypatch):
     """``fast``: fold-1 clips only, ordered by ``fast_motion`` (jittery clips first), ``--clips N`` the first N;
     bandai1 cannot be selected on with it."""
