@@ -80,44 +80,37 @@ def test_only_stream_keeps_the_other_parts(tmp_path, monkeypatch):
     assert "| ebf | onnx | 2,000 | 0.400 | 0.900 | 0.500 | 2.000 |" in text
 
 
-def test_style_split_scores_only_that_style_and_tunes_without_it(monkeypatch):
-    """``style:NAME`` scores clips of that style only; the training clips (for gaussian-tuned) hold none."""
+@pytest.mark.parametrize(
+    ("split", "labels", "marker"),
+    [
+        ("style:elderly", [f"walk_{s}" for s in ("elderly", "active", "normal")], "_elderly_"),
+        ("content:run", [f"{c}_normal" for c in ("run", "walk", "wave-left-hand")], "_run_"),
+    ],
+)
+def test_held_out_split_scores_only_its_clips_and_tunes_without_them(monkeypatch, split, labels, marker):
+    """``style:NAME`` / ``content:NAME`` score clips of that style or content outside fold 0 only; the training
+    clips (for gaussian-tuned) hold none of them."""
     from mocapnet.corpus import Corpus
     from mocapnet.evaluate.bvh_bench import synthetic
 
     base = synthetic(4, chain=True)
-    names = [f"dataset-2_walk_{s}_{i:03d}" for s in ("elderly", "active", "normal") for i in range(10)]
+    names = [f"dataset-2_{label}_{i:03d}" for label in labels for i in range(10)]
     motions = [type(base)(base.skeleton, base.channels, base.fps, n) for n in names]
     corpus = Corpus("fake", Path("."), motions, {n: i % 5 for i, n in enumerate(names)})
     monkeypatch.setattr(bench, "load_corpus", lambda name, progress: corpus)
-    _, clips, train = bench.split_clips("fake", "style:elderly", 4)
-    assert len(clips) == 4 and all("_elderly_" in m.name for m in clips)
+    assert bench.check_split(split) == split
+    _, clips, train = bench.split_clips("fake", split, 4)
+    assert len(clips) == 4 and all(marker in m.name for m in clips)
     assert all(corpus.folds[m.name] != 0 for m in clips)  # the fold-0 test clips stay unseen
-    assert train and not any("_elderly_" in m.name for m in train)
+    assert train and not any(marker in m.name for m in train)
     assert all(corpus.folds[m.name] not in (0, 1) for m in train)
-    with pytest.raises(ValueError, match="no clip of style 'elderly' outside"):
-        only_test = Corpus("fake", Path("."), motions, {n: 0 if "_elderly_" in n else 2 for n in names})
+    kind, label = split.split(":")
+    with pytest.raises(ValueError, match=f"no clip of {kind} '{label}' outside"):
+        only_test = Corpus("fake", Path("."), motions, {n: 0 if marker in n else 2 for n in names})
         monkeypatch.setattr(bench, "load_corpus", lambda name, progress: only_test)
-        bench.split_clips("fake", "style:elderly", 4)
-
-
-def test_content_split_scores_only_that_content_and_tunes_without_it(monkeypatch):
-    """``content:NAME`` scores clips of that content outside fold 0; the training clips hold none of it."""
-    from mocapnet.corpus import Corpus
-    from mocapnet.evaluate.bvh_bench import synthetic
-
-    base = synthetic(4, chain=True)
-    names = [f"dataset-2_{c}_normal_{i:03d}" for c in ("run", "walk", "wave-left-hand") for i in range(10)]
-    motions = [type(base)(base.skeleton, base.channels, base.fps, n) for n in names]
-    corpus = Corpus("fake", Path("."), motions, {n: i % 5 for i, n in enumerate(names)})
-    monkeypatch.setattr(bench, "load_corpus", lambda name, progress: corpus)
-    assert bench.check_split("content:run") == "content:run"
-    _, clips, train = bench.split_clips("fake", "content:run", 4)
-    assert len(clips) == 4 and all("_run_" in m.name for m in clips)
-    assert all(corpus.folds[m.name] != 0 for m in clips)
-    assert train and not any("_run_" in m.name for m in train)
-    with pytest.raises(ValueError, match="content:NAME"):
-        bench.check_split("content:")
+        bench.split_clips("fake", split, 4)
+    with pytest.raises(ValueError, match=f"{kind}:NAME"):
+        bench.check_split(f"{kind}:")
 
 
 def test_fast_split_is_fold_1_with_the_most_fast_movement_first(monkeypatch):
