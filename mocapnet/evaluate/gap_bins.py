@@ -13,16 +13,14 @@ import dataclasses
 import os
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
 from mocapnet.corpus import load_corpus
 from mocapnet.corrupt import corrupt_motion, seed_for
 from mocapnet.evaluate.metrics import gap_err_deg, wrapped_diff
-from mocapnet.evaluate.results import markdown_table
+from mocapnet.evaluate.results import markdown_table, ratio_bars, save_figure
 from mocapnet.fill import gap_list
-from mocapnet.io.atomic import atomic_output
 from mocapnet.motion import Motion
 
 #: Gap-length bins in frames, inclusive (issue 11: ≤ 5, 5–15, 15–30, 30–60, > 60).
@@ -331,22 +329,13 @@ def plot(result: dict, path: str | os.PathLike) -> None:
     rows += [(f"{b['corruption']}  {b['bin']} frames ({b['gaps']} gaps)", b) for b in result["bins"]]
     learned = [n for n in ("ebd", "ebd-raw") if n in result["names"]]
     ratios = {n: [r[n] / min(r[m] for m in REFERENCES) for _, r in rows] for n in learned}
-    y = np.arange(len(rows))
     fig, ax = plt.subplots(figsize=(8.5, 0.38 * len(rows) + 1.6))
-    height = 0.8 / len(learned)
-    for k, name in enumerate(learned):
-        bars = ax.barh(y + (k - (len(learned) - 1) / 2) * height, ratios[name], height, label=name)
-        ax.bar_label(bars, fmt="%.3f", fontsize=7, padding=2)
-    ax.axvline(1.0, color="black", linewidth=1)
-    ax.set_yticks(y, [label for label, _ in rows], fontsize=8)
-    ax.invert_yaxis()
+    ratio_bars(ax, [label for label, _ in rows], ratios)
     ax.set_xlabel("gap error ÷ the better of lerp and spline (< 1: better than both)")
     ax.set_title(f"EBD gap filling, {result['corpus']} fold 0", fontsize=10)
     ax.legend(loc="lower right", fontsize=8)
     fig.tight_layout()
-    with atomic_output(Path(path)) as tmp:
-        fig.savefig(tmp, dpi=110, format="png")
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 def tune_markdown(result: dict) -> str:

@@ -11,8 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from mocapnet.evaluate.harness import ROW_FIELDS, Evaluation, reference
-from mocapnet.evaluate.results import fmt, markdown_table, text_output
-from mocapnet.io.atomic import atomic_output
+from mocapnet.evaluate.results import fmt, markdown_table, ratio_bars, save_figure, text_output
 from mocapnet.methods.registry import MethodSpec
 
 
@@ -161,9 +160,7 @@ def plot_per_motion(ev: Evaluation, path: str | os.PathLike, title: str = "") ->
     ax.set_title(title or f"{ev.data}: {ev.corruption}")
     ax.grid(alpha=0.3)
     fig.tight_layout()
-    with atomic_output(Path(path)) as tmp:
-        fig.savefig(tmp, dpi=110, format="png")
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 def _drawn_as(method: str, wanted: list[str], rows: list[dict]) -> str:
@@ -213,21 +210,12 @@ def plot_ratios(rows: list[dict], methods: list[str], path: str | os.PathLike, t
         1, len(panels), figsize=(4.6 * len(panels), 0.42 * n_rows * len(found) / 2 + 1.8), sharex=True
     )
     for ax, (corpus, corruptions) in zip(np.atleast_1d(axes), panels):
-        y = np.arange(len(corruptions))
-        height = 0.8 / len(found)
-        for k, m in enumerate(found):
-            values = [ratio.get((corpus, c, m), np.nan) for c in corruptions]
-            bars = ax.barh(y + (k - (len(found) - 1) / 2) * height, values, height, label=m)
-            ax.bar_label(bars, fmt="%.3f", fontsize=6, padding=2)
-        ax.axvline(1.0, color="black", linewidth=1)
-        ax.set_yticks(y, corruptions, fontsize=8)
-        ax.invert_yaxis()
+        series = {m: [ratio.get((corpus, c, m), np.nan) for c in corruptions] for m in found}
+        ratio_bars(ax, corruptions, series, value_size=6)
         ax.set_title(corpus, fontsize=10)
         ax.set_xlabel("error ÷ the best reference baseline", fontsize=8)
     np.atleast_1d(axes)[-1].legend(loc="lower right", fontsize=7)
     if title:
         fig.suptitle(title, fontsize=10)
     fig.tight_layout()
-    with atomic_output(Path(path)) as tmp:
-        fig.savefig(tmp, dpi=110, format="png")
-    plt.close(fig)
+    save_figure(fig, path)

@@ -106,3 +106,26 @@ def provenance_header(title: str, result: Mapping[str, Any]) -> list[str]:
         f"Git commit: `{result['git_commit']}`; load average at start {result['load']} ({result['machine']}).",
         "",
     ]
+
+
+def ratio_bars(ax: Any, labels: Sequence[str], series: Mapping[str, Sequence[float]], value_size: float = 7) -> None:
+    """Horizontal bars of ratios on a matplotlib ``ax``: one row per label (top to bottom), one bar per entry of
+    ``series`` (name -> a value per label, NaN for none) with its value written beside it, and a line at 1 (the
+    reference)."""
+    y = np.arange(len(labels))
+    height = 0.8 / len(series)
+    for k, (name, values) in enumerate(series.items()):
+        bars = ax.barh(y + (k - (len(series) - 1) / 2) * height, values, height, label=name)
+        ax.bar_label(bars, fmt="%.3f", fontsize=value_size, padding=2)
+    ax.axvline(1.0, color="black", linewidth=1)
+    ax.set_yticks(y, labels, fontsize=8)
+    ax.invert_yaxis()
+
+
+def save_figure(fig: Any, path: str | os.PathLike) -> None:
+    """Write a matplotlib figure as a PNG at ``path`` (110 dpi, atomically) and close it."""
+    import matplotlib.pyplot as plt
+
+    with atomic_output(Path(path)) as tmp:
+        fig.savefig(tmp, dpi=110, format="png")
+    plt.close(fig)
