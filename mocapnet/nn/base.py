@@ -18,6 +18,11 @@ Input normalisation (``norm`` hyper-parameter of the networks that offer it, def
   statistics otherwise, e.g. for the bias bound): relative noise looks alike in every clip, as with ``"clip"``,
   and absolute noise (a fixed number of cm) keeps its size, as with ``"corpus"``.
 
+Delta features (``deltas`` hyper-parameter of EBF, default ``"off"``): ``"add"`` appends each channel's central
+first and second differences divided by the channel's scale (``frame_deltas``, 2C more columns); ``"only"`` feeds
+them instead of the normalised angles (a pose-free input: the network sees how each channel moves, never where it
+is; the angular velocity stays). Offline only: the streaming kernels refuse such a network.
+
 Angle features (``sincos`` hyper-parameter, default False): with it, the sine and cosine of every scored
 channel (the raw angle, not normalised) follow the normalised inputs: a representation without the ±180° wrap
 that the Euler values have, 2C more columns.
@@ -42,9 +47,26 @@ NORMS = ("corpus", "clip", "both")
 NORM_KEYS = ("center", "scale", "angvel_scale")
 
 
-def n_inputs(n_channels: int, norm: str, sincos: bool = False) -> int:
+#: Delta-input modes (``deltas`` hyper-parameter, module docstring).
+DELTAS = ("off", "add", "only")
+
+
+def n_inputs(n_channels: int, norm: str, sincos: bool = False, deltas: str = "off") -> int:
     """Width of ``CleanerModule.input_features`` for ``n_channels`` scored channels."""
-    return (n_channels + 3) * (2 if norm == "both" else 1) + (2 * n_channels if sincos else 0)
+    angles = 0 if deltas == "only" else n_channels * (2 if norm == "both" else 1)
+    return angles + 3 * (2 if norm == "both" else 1) + (2 * n_channels if sincos else 0) + (
+        2 * n_channels if deltas != "off" else 0
+    )
+
+
+def frame_deltas(filled: torch.Tensor, scale: torch.Tensor) -> torch.Tensor:
+    """Central first and second differences of scored channels ``[..., T, C]`` (degrees, each step wrapped into
+    ±180) divided by ``scale`` (``[..., 1, C]`` or ``[C]`` degrees), clipped to ±8 → ``[..., T, 2C]``; a step
+    beyond either end counts as 0. Pose-free inputs: they show how a channel moves, not where it is."""
+    step = wrap_deg(filled[..., 1:, :] - filled[..., :-1, :])
+    pad = torch.zeros_like(filled[..., :1, :])
+    ahead, behind = torch.cat([step, pad], dim=-2), torch.cat([pad, step], dim=-2)
+    return torch.cat([(ahead + behind) / (2 * scale), (ahead - behind) / scale], dim=-1).clamp(-8.0, 8.0)
 
 
 def uses_clip_statistics(model: torch.nn.Module) -> bool:
@@ -144,12 +166,16 @@ class CleanerModule(L.LightningModule, ABC):
         angular velocity of the ``stats`` part (C more columns). With the ``sincos`` hyper-parameter the sine
         and cosine of ``filled`` come last (2C more columns)."""
         extra = [] if mask is None else [mask.to(filled.dtype)]
-        parts = [self.normalise(filled, stats), *extra, self.angvel_features(angvel, stats)]
+        deltas = self.hparams.get("deltas", "off")
+        angles = [] if deltas == "only" else [self.normalise(filled, stats)]
+        parts = [*angles, *extra, self.angvel_features(angvel, stats)]
         if self.hparams.get("norm", "corpus") == "both":
             parts = [self.normalise(filled), self.angvel_features(angvel), *parts]
         if self.hparams.get("sincos", False):
             rad = torch.deg2rad(filled)
             parts += [rad.sin(), rad.cos()]
+        if deltas != "off":
+            parts.append(frame_deltas(filled, stats["scale"]))
         return torch.cat(parts, dim=-1)
 
     @property

@@ -16,7 +16,9 @@ a filter head of ``head_layers`` tanh layers ends in the filter parameters:
 each clip's own (``base.clip_statistics`` of the noisy input), and then the bias is in units of that clip's
 scale too, so the network sees the same relative noise on a clip of any corpus; ``norm="both"`` gives it both
 inputs side by side (``base.input_features``; a stream takes the running clip statistics for the clip part).
-``sincos=True`` adds the sine and cosine of every scored channel to the inputs (``base.input_features``).
+``sincos=True`` adds the sine and cosine of every scored channel to the inputs (``base.input_features``);
+``deltas="add"`` each channel's first and second differences, ``deltas="only"`` those instead of the angles
+(``base.frame_deltas``; offline only).
 ``change_limit`` is used at inference only: the self-check factor of ``selfcheck.limit_change`` (0: off), chosen on
 the validation fold and stored with the checkpoint.
 
@@ -34,7 +36,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from mocapnet.nn.base import NORMS, CleanerModule, n_inputs
+from mocapnet.nn.base import DELTAS, NORMS, CleanerModule, n_inputs
 from mocapnet.nn.layers import (
     BLSTM,
     gaussian_filter,
@@ -72,6 +74,7 @@ class EBF(CleanerModule):
         lr_schedule: str = "plateau",
         norm: str = "corpus",
         sincos: bool = False,
+        deltas: str = "off",
         bias_bound: float = 3.0,
         change_limit: float = 0.0,
         skeleton_hash: str = "",
@@ -83,12 +86,16 @@ class EBF(CleanerModule):
             raise ValueError(f"filter_shape must be 'gaussian' or 'free', got {filter_shape!r}")
         if norm not in NORMS:
             raise ValueError(f"norm must be one of {NORMS}, got {norm!r}")
+        if deltas not in DELTAS:
+            raise ValueError(f"deltas must be one of {DELTAS}, got {deltas!r}")
+        if deltas == "only" and norm == "both":
+            raise ValueError("deltas='only' drops the normalised angles; it cannot go with norm='both'")
         if not change_limit >= 0:
             raise ValueError(f"change_limit must be >= 0, got {change_limit!r}")
         if not bias_bound > 0:
             raise ValueError(f"bias_bound must be positive, got {bias_bound!r}")
         self.save_hyperparameters()
-        n_in = n_inputs(n_channels, norm, sincos)
+        n_in = n_inputs(n_channels, norm, sincos, deltas)
         encoder = mlp(tapered(n_in, code, encoder_layers), last_activation=True) if encoder_layers else None
         self.encoder = encoder or nn.Identity()
         self.blstm = BLSTM(code if encoder_layers else n_in, hidden, layers=2, dropout=dropout)

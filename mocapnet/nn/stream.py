@@ -385,6 +385,8 @@ class EBFStream:
     ) -> None:
         if not isinstance(model, EBF):
             raise TypeError("EBFStream streams EBF (and BF) models")
+        if model.hparams.get("deltas", "off") != "off":
+            raise ValueError("EBFStream cannot stream a network with delta inputs (deltas != 'off'): clean offline")
         if backend not in BACKENDS:
             raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
         if backend == "onnx" and not onnx_kernel.available():
