@@ -54,8 +54,11 @@ DELTAS = ("off", "add", "only")
 def n_inputs(n_channels: int, norm: str, sincos: bool = False, deltas: str = "off") -> int:
     """Width of ``CleanerModule.input_features`` for ``n_channels`` scored channels."""
     angles = 0 if deltas == "only" else n_channels * (2 if norm == "both" else 1)
-    return angles + 3 * (2 if norm == "both" else 1) + (2 * n_channels if sincos else 0) + (
-        2 * n_channels if deltas != "off" else 0
+    return (
+        angles
+        + 3 * (2 if norm == "both" else 1)
+        + (2 * n_channels if sincos else 0)
+        + (2 * n_channels if deltas != "off" else 0)
     )
 
 
