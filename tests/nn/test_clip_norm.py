@@ -275,3 +275,63 @@ def test_nn_ablation_takes_clip_statistics(sample, tiny, batch, norm):
         assert np.isfinite(clean_channels(model, noisy, no_gaps, sample.skeleton, sample.fps, mode)).all()
     with pytest.raises(ValueError, match="norm"):
         tiny("nn", sample, norm="neither")
+
+
+def test_frame_deltas_are_wrapped_central_differences_in_channel_scales():
+    """A ramp of 3°/frame crossing ±180: first difference 3 (wrapped, not -357) ÷ scale inside, half that at the
+    ends (the step beyond counts as 0); second difference 0 inside, ∓3 ÷ scale at the ends."""
+    from mocapnet.nn.base import frame_deltas
+
+    ramp = torch.as_tensor(wrap_deg(170.0 + 3.0 * np.arange(8.0)))[:, None]  # [T, 1], crosses +180
+    got = frame_deltas(ramp, torch.tensor([2.0]))
+    np.testing.assert_allclose(got[1:-1, 0].numpy(), 1.5)
+    np.testing.assert_allclose(got[1:-1, 1].numpy(), 0.0, atol=1e-12)
+    np.testing.assert_allclose(got[[0, -1], 0].numpy(), 0.75)
+    np.testing.assert_allclose(got[[0, -1], 1].numpy(), [1.5, -1.5])
+    assert float(frame_deltas(ramp * 0 + torch.arange(8.0)[:, None] * 100, torch.tensor([1.0])).max()) == 8.0
+
+
+@pytest.mark.parametrize("deltas", ["add", "only"])
+def test_delta_inputs_train_clean_round_trip_and_refuse_streaming(sample, tiny, batch, deltas, tmp_path):
+    """``deltas="add"``: the plain input followed by ``frame_deltas`` (2C more columns); ``"only"``: the angular
+    velocity and the deltas, no angle (pose-free: a clip shifted by a constant pose gives the same input). Either
+    trains, cleans in both modes, survives a checkpoint round trip, and a stream refuses it by name."""
+    from mocapnet.nn.base import frame_deltas, n_inputs
+    from mocapnet.nn.infer import load_model
+    from mocapnet.nn.stream import EBFStream
+
+    n = batch["filled"].shape[-1]
+    plain, model = tiny("ebf-free", sample, norm="clip"), tiny("ebf-free", sample, norm="clip", deltas=deltas).eval()
+    stats = clip_statistics(batch["filled"], batch["angvel"])
+    features = model.features(batch["filled"], batch["angvel"], stats)
+    assert model.encoder[0].in_features == features.shape[-1] == n_inputs(n, "clip", deltas=deltas)
+    expected = plain.features(batch["filled"], batch["angvel"], stats)
+    if deltas == "only":
+        expected = expected[..., n:]  # the angular velocity alone
+        shifted = wrap_deg(batch["filled"] + torch.linspace(-90.0, 90.0, n))
+        torch.testing.assert_close(model.features(shifted, batch["angvel"], stats), features, atol=2e-3, rtol=0)
+    torch.testing.assert_close(features[..., : features.shape[-1] - 2 * n], expected)
+    torch.testing.assert_close(features[..., -2 * n :], frame_deltas(batch["filled"], stats["scale"]))
+    model.train()
+    loss = model.training_step(batch | stats, 0)
+    loss.backward()
+    assert torch.isfinite(loss) and model.encoder[0].weight.grad[:, -2 * n :].abs().sum() > 0
+    model.eval()
+    path = tmp_path / "deltas.ckpt"
+    torch.save(
+        {"state_dict": model.state_dict(), "hyper_parameters": dict(model.hparams), "mocapnet_model": "EBF"}, path
+    )
+    loaded = load_model(path)
+    assert loaded.hparams.deltas == deltas
+    noisy = sample.channels + np.random.default_rng(1).normal(0.0, 0.5, sample.channels.shape)
+    mask = np.zeros(noisy.shape, dtype=bool)
+    for mode in ("sequence", "windowed"):
+        out = clean_channels(model, noisy, mask, sample.skeleton, sample.fps, mode)
+        np.testing.assert_allclose(clean_channels(loaded, noisy, mask, sample.skeleton, sample.fps, mode), out)
+        assert out.shape == noisy.shape and np.isfinite(out).all()
+    with pytest.raises(ValueError, match="delta inputs"):
+        EBFStream(model, sample.skeleton, sample.fps)
+    with pytest.raises(ValueError, match="deltas must be one of"):
+        tiny("ebf-free", sample, deltas="both")
+    with pytest.raises(ValueError, match="cannot go with norm='both'"):
+        tiny("ebf-free", sample, norm="both", deltas="only")
