@@ -243,6 +243,8 @@ def _check_export(
     entries = {e["file"]: e for e in read_index()}
     if as_ebf and method not in EBF_VARIANTS:
         raise ValueError(f"{file}: a {method} checkpoint cannot serve 'ebf'")
+    if as_ebf and hp.get("deltas", "off") != "off":
+        raise ValueError(f"{file}: a network with delta inputs cannot serve 'ebf' (it cannot stream)")
     if short is not None:
         partner = entries.get(short) if short != file else None
         checks = [

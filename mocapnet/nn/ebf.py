@@ -88,8 +88,8 @@ class EBF(CleanerModule):
             raise ValueError(f"norm must be one of {NORMS}, got {norm!r}")
         if deltas not in DELTAS:
             raise ValueError(f"deltas must be one of {DELTAS}, got {deltas!r}")
-        if deltas == "only" and norm == "both":
-            raise ValueError("deltas='only' drops the normalised angles; it cannot go with norm='both'")
+        if deltas == "only" and (norm == "both" or sincos):
+            raise ValueError("deltas='only' is pose-free; it cannot go with norm='both' or sincos (both feed angles)")
         if not change_limit >= 0:
             raise ValueError(f"change_limit must be >= 0, got {change_limit!r}")
         if not bias_bound > 0:
@@ -117,7 +117,7 @@ class EBF(CleanerModule):
     def features(
         self, filled: torch.Tensor, angvel: torch.Tensor, stats: dict[str, torch.Tensor] | None = None
     ) -> torch.Tensor:
-        """``[B, T, C]`` degrees and ``[B, T, 3]`` rad/s → encoder input ``[B, T, n_inputs(C, norm, sincos)]``
+        """``[B, T, C]`` degrees and ``[B, T, 3]`` rad/s → encoder input ``[B, T, n_inputs(C, norm, sincos, deltas)]``
         (``input_features``), normalised with ``stats`` (from ``input_stats``; default
         ``input_stats(filled, angvel)``)."""
         stats = self.input_stats(filled, angvel) if stats is None else stats
@@ -192,7 +192,8 @@ class EBF(CleanerModule):
         ``[cores_i, cores_{i+1})``, with only the LSTM run on the windows. ``per_group`` windows at a time: the
         encoder runs once per frame of the span they cover, the head once per kept frame (its filter needs only
         the ``half`` input frames beyond the group's cores); memory is O(T·C) for the output and O(group)
-        for the rest."""
+        for the rest. A network with delta inputs (``deltas``) differs slightly: its inputs at a window's edges
+        see the frame beyond (the span's), where ``predict_batch`` on the window alone counts a zero step."""
         # frame-major memory: the filter's per-tap sums run several times slower on a transposed input
         filled, angvel = batch["filled"].contiguous(), batch["angvel"].contiguous()
         n, half = filled.shape[1], self.hparams.half

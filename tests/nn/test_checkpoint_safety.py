@@ -183,6 +183,20 @@ def test_export_records_sha256_and_keeps_the_network(fp16, tiny, sample, tmp_pat
     assert float(diff) < (0.05 if fp16 else 1e-5)
 
 
+def test_export_refuses_a_delta_input_network_as_the_ebf(tiny, sample, tmp_path, monkeypatch):
+    """The shipped ``ebf`` must stream; a network with delta inputs cannot, so it cannot serve ``ebf`` (nothing is
+    written); it may still ship under its own method name."""
+    from tests.nn.test_neural_methods import save
+
+    monkeypatch.setattr(checkpoints, "CHECKPOINT_DIR", (tmp_path / "ship").resolve())
+    monkeypatch.setattr(checkpoints, "INDEX", tmp_path / "ship" / "index.json")
+    src = save(tiny("ebf-free", sample, norm="clip", deltas="add"), tmp_path / "d.ckpt")
+    with pytest.raises(ValueError, match="delta inputs cannot serve 'ebf'"):
+        checkpoints.export(src, "sample_ebf_deltas", as_ebf=True)
+    assert not (tmp_path / "ship" / "sample_ebf_deltas.ckpt").exists()
+    assert checkpoints.export(src, "sample_ebf_deltas").is_file()
+
+
 def test_export_pairs_an_ebd_with_its_short_gap_network(tiny, sample, tmp_path, monkeypatch):
     """``export(short=FILE)`` records the pair both ways: the main entry names its partner and length, the partner
     is marked ``short_for`` and is never the lookup's answer; a partner that is not a shipped EBD of the skeleton

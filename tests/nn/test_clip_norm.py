@@ -333,5 +333,6 @@ def test_delta_inputs_train_clean_round_trip_and_refuse_streaming(sample, tiny, 
         EBFStream(model, sample.skeleton, sample.fps)
     with pytest.raises(ValueError, match="deltas must be one of"):
         tiny("ebf-free", sample, deltas="both")
-    with pytest.raises(ValueError, match="cannot go with norm='both'"):
-        tiny("ebf-free", sample, norm="both", deltas="only")
+    for pose in ({"norm": "both"}, {"sincos": True}):
+        with pytest.raises(ValueError, match="pose-free"):
+            tiny("ebf-free", sample, deltas="only", **pose)
