@@ -57,6 +57,8 @@ _EBD_EXTRA = (
     ", rehearse=N (per gap N stand-in gaps where the truth is known; a gap keeps the share of the network's correction"
     " that fitted them), rehearse_mix=0 (all or nothing: interpolate the gaps where the network lost),"
     " rehearse_pool=W (0-1: weight of the share fitted to all the clip's stand-ins together),"
+    " rehearse_passes=P (hide the stand-ins in P network passes instead of one, so each pass damages the clip"
+    " less),"
     " short_pool=1 (gaps shorter than the gate's end keep one share fitted to all their stand-ins together,"
     " instead of each gap's verdict),"
     " gate_end=S (seconds: where the length gate ends — shorter gaps keep a share of the network's correction"
@@ -76,6 +78,7 @@ _BLEND_OPTIONS = (
     "rehearse_min_s",
     "rehearse_mix",
     "rehearse_pool",
+    "rehearse_passes",
     "short_pool",
     "gate_end",
 )
@@ -361,6 +364,7 @@ def _single(method: str):
         rehearse_min_s: float | None = None,
         rehearse_mix: int | None = None,
         rehearse_pool: float | None = None,
+        rehearse_passes: int | None = None,
         short_pool: int | None = None,
         gate_end: float | None = None,
         short: str | bool | None = "auto",
@@ -372,8 +376,8 @@ def _single(method: str):
         an angle method the self-check measures the network's change from (``limit_change(anchor=…)``: each
         channel's RMS distance from that method's output capped at ``limit`` × the input's noise).
         ``rehearse``, ``rehearse_margin``, ``rehearse_min_s``, ``rehearse_mix``, ``rehearse_pool``,
-        ``short_pool``: EBD's rehearsal check (``ebd.GapBlend``; default: the checkpoint's blend; ``rehearse=0``:
-        off). ``gate_end``: EBD's length gate ends here (s; ``GapBlend.gate_s``
+        ``rehearse_passes``, ``short_pool``: EBD's rehearsal check (``ebd.GapBlend``; default: the checkpoint's
+        blend; ``rehearse=0``: off). ``gate_end``: EBD's length gate ends here (s; ``GapBlend.gate_s``
         keeps its start). ``short``: an EBD checkpoint for the gaps shorter than ``short_max_s`` (s), run with the
         same options (``fill_by_gap_length``); ``auto`` (default): the shipped ``ebd``'s own short-gap network when
         the main one is shipped too; ``off`` (or ``none``): the main network alone (``_short_resolver``)."""
@@ -406,6 +410,7 @@ def _single(method: str):
                 ("rehearse_min_s", rehearse_min_s),
                 ("rehearse_mix", rehearse_mix),
                 ("rehearse_pool", rehearse_pool),
+                ("rehearse_passes", rehearse_passes),
                 ("short_pool", short_pool),
                 ("gate_end", gate_end),
             )

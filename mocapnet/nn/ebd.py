@@ -192,6 +192,9 @@ class GapBlend:
     (least squares over the stand-ins of all those gaps together) against each gap's own, which few stand-ins
     make noisy. ``short_pool``: instead of the verdict, the gaps shorter than ``gate_s[1]`` keep one share per
     clip, fitted (least squares, clipped to [0, 1]) over the stand-ins of all of them together.
+    ``rehearse_passes``: the stand-ins are hidden in this many network passes (each gap's i-th stand-in in pass
+    i mod passes) instead of all in one, so each pass hides less of the clip than one pass would (the real
+    gaps plus fewer stand-ins), at one network pass more each.
     """
 
     spline_max_s: float = 0.5
@@ -205,6 +208,7 @@ class GapBlend:
     rehearse_mix: bool = False
     rehearse_pool: float = 0.0
     short_pool: bool = False
+    rehearse_passes: int = 1
 
 
 #: The shipped setting: the blend chosen on bandai2 fold 1 (``scripts/bench_ebd.py --tune``), and the rehearsal
@@ -214,11 +218,16 @@ class GapBlend:
 GAP_BLEND = GapBlend(rehearsals=4, rehearse_margin=0.5, rehearse_mix=True)
 
 
-def _whole(value: Any) -> int:
-    """``value`` as an int if it is a whole number (not a bool), else ValueError."""
-    if isinstance(value, bool) or not np.isfinite(float(value)) or float(value) != int(float(value)):
-        raise ValueError(f"rehearsals must be a whole number, got {value!r}")
-    return int(float(value))
+def _whole(name: str) -> Callable[[Any], int]:
+    """A converter giving ``value`` as an int if it is a whole number (not a bool), else ValueError naming
+    ``name``."""
+
+    def convert(value: Any) -> int:
+        if isinstance(value, bool) or not np.isfinite(float(value)) or float(value) != int(float(value)):
+            raise ValueError(f"{name} must be a whole number, got {value!r}")
+        return int(float(value))
+
+    return convert
 
 
 def _flag(name: str) -> Callable[[Any], bool]:
@@ -238,7 +247,8 @@ def as_blend(settings: Mapping[str, Any]) -> GapBlend:
     try:
         kinds = {
             "gate_s": tuple,
-            "rehearsals": _whole,
+            "rehearsals": _whole("rehearsals"),
+            "rehearse_passes": _whole("rehearse_passes"),
             "rehearse_mix": _flag("rehearse_mix"),
             "short_pool": _flag("short_pool"),
         }
@@ -247,8 +257,11 @@ def as_blend(settings: Mapping[str, Any]) -> GapBlend:
         raise ValueError(f"gap_blend {dict(settings)!r} is not a GapBlend: {err}") from None
     if len(blend.gate_s) != 2:
         raise ValueError(f"gap_blend gate_s must hold two times (s), got {blend.gate_s!r}")
-    if blend.rehearsals < 0 or not blend.rehearse_margin > 0 or blend.rehearse_min_s < 0:
-        raise ValueError(f"gap_blend needs rehearsals >= 0, rehearse_margin > 0, rehearse_min_s >= 0: got {blend}")
+    if blend.rehearsals < 0 or not blend.rehearse_margin > 0 or blend.rehearse_min_s < 0 or blend.rehearse_passes < 1:
+        raise ValueError(
+            f"gap_blend needs rehearsals >= 0, rehearse_margin > 0, rehearse_min_s >= 0, rehearse_passes >= 1: "
+            f"got {blend}"
+        )
     if not 0.0 <= blend.rehearse_pool <= 1.0:
         raise ValueError(f"gap_blend rehearse_pool must be within [0, 1], got {blend.rehearse_pool!r}")
     return blend
@@ -389,16 +402,22 @@ def rehearse(
     fake, stand_ins = stand_in_gaps(mask, blend.rehearsals, blend.rehearse_min_s * fps)
     if not fake.any():
         return keep
-    both = mask | fake
-    trial = np.where(both, np.nan, channels)
-    base = gap_fill(trial, both, blend.spline_max_s * fps)
-    filled = blend_gaps(trial, both, network(both), fps, replace(blend, rehearsals=0))[0]
+    passes = max(1, min(blend.rehearse_passes, blend.rehearsals))
+    trials = []  # per pass: (the interpolation, the blend) with the real gaps and that pass's stand-ins missing
+    for k in range(passes):
+        hidden = fake if passes == 1 else _stand_in_mask(mask, gaps, stand_ins, k, passes)
+        both = mask | hidden
+        trial = np.where(both, np.nan, channels)
+        base = gap_fill(trial, both, blend.spline_max_s * fps)
+        trials.append((base, blend_gaps(trial, both, network(both), fps, replace(blend, rehearsals=0))[0]))
     fits: dict[int, tuple[float, float]] = {}  # mix-eligible gap -> (step · residual, step²) over its stand-ins
     short: dict[int, tuple[float, float]] = {}  # with short_pool, the same for each shorter gap
     for g, ((cols, a, b), places) in enumerate(zip(gaps, stand_ins)):
         if places:
-            rows = np.concatenate([np.arange(s, e) for s, e in places])
-            truth, fill_s, base_s = (x[rows][:, cols] for x in (channels, filled, base))
+            pieces = [(i % passes, np.arange(s, e)) for i, (s, e) in enumerate(places)]
+            truth = np.concatenate([channels[rows][:, cols] for _, rows in pieces])
+            base_s = np.concatenate([trials[k][0][rows][:, cols] for k, rows in pieces])
+            fill_s = np.concatenate([trials[k][1][rows][:, cols] for k, rows in pieces])
             long_gap = b - a >= blend.gate_s[1] * fps
             if (blend.rehearse_mix and long_gap) or (blend.short_pool and not long_gap):
                 step = wrap_deg(fill_s - base_s)
@@ -414,6 +433,18 @@ def rehearse(
     if short:
         keep[list(short)] = _share(*np.sum(list(short.values()), axis=0))
     return keep
+
+
+def _stand_in_mask(
+    mask: np.ndarray, gaps: list, stand_ins: list[list[tuple[int, int]]], k: int, passes: int
+) -> np.ndarray:
+    """The stand-in mask ``[T, C]`` of rehearsal pass ``k`` of ``passes``: every gap's stand-ins number k,
+    k + passes, … (``stand_in_gaps`` order)."""
+    hidden = np.zeros_like(mask)
+    for (cols, _, _), places in zip(gaps, stand_ins):
+        for s, e in places[k::passes]:
+            hidden[s:e, cols] = True
+    return hidden
 
 
 def _share(fit: float, power: float) -> float:

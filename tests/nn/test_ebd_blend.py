@@ -216,6 +216,51 @@ def test_rehearse_mix_keeps_the_share_of_the_correction_that_fits_the_stand_ins(
     assert shares[0] in (0.0, 1.0) and 0.0 < shares[1] < 1.0
 
 
+def test_rehearse_passes_hide_each_stand_in_once_in_lighter_passes():
+    """``rehearse_passes=P``: P network passes, each hiding the real gaps and every gap's stand-ins i with
+    i mod P = pass (the same stand-ins as one pass, split); together they hide each stand-in exactly once; the
+    shares of a network that overshoots by 2x stay 1/2; 1 pass is the single-pass rehearsal; more passes than
+    stand-ins run one pass per stand-in."""
+    from mocapnet.fill import gap_fill
+
+    truth = smooth_channels(900)
+    mask = gap_mask(truth.shape, [(100, 120, [0]), (300, 330, [1, 2]), (890, 900, [3])])
+    channels = np.where(mask, np.nan, truth)
+    blend = dataclasses.replace(
+        GAP_BLEND, gate_s=(0.0, 1e-6), taper_s=1e-6, speed_factor=np.inf, rehearsals=4, rehearse_mix=True
+    )
+    seen: list[np.ndarray] = []
+
+    def overshoot(m):
+        seen.append(m.copy())
+        base = gap_fill(np.where(m, np.nan, truth), m, blend.spline_max_s * FPS)
+        return base + 2.0 * (truth - base)
+
+    fake, places = stand_in_gaps(mask, 4)
+    one = rehearse(channels, mask, FPS, blend, overshoot)
+    assert len(seen) == 1 and (seen[0] == (mask | fake)).all()
+    seen.clear()
+    two = rehearse(channels, mask, FPS, dataclasses.replace(blend, rehearse_passes=2), overshoot)
+    assert len(seen) == 2
+    np.testing.assert_allclose(two, one)
+    np.testing.assert_allclose(two, [0.5, 0.5, 1.0])
+    hidden = [m & ~mask for m in seen]
+    assert not (hidden[0] & hidden[1]).any() and ((hidden[0] | hidden[1]) == fake).all()
+    for k in (0, 1):  # pass k hides stand-ins k and k + 2 of every gap
+        expected = np.zeros_like(mask)
+        for (cols, _, _), mine in zip(gap_list(mask), places):
+            for s, e in mine[k::2]:
+                expected[s:e, cols] = True
+        assert (hidden[k] == expected).all() and hidden[k].sum() < fake.sum()
+    seen.clear()
+    rehearse(channels, mask, FPS, dataclasses.replace(blend, rehearse_passes=9), overshoot)
+    assert len(seen) == 4
+    with pytest.raises(ValueError, match="rehearse_passes"):
+        as_blend({"rehearse_passes": 0})
+    with pytest.raises(ValueError, match="rehearse_passes must be a whole number"):
+        as_blend({"rehearse_passes": 1.5})
+
+
 def test_rehearse_pool_mixes_each_gaps_share_with_the_clips_pooled_one():
     """A network that overshoots by 2x on channel 0 (share 1/2) and is exact on channels 1-2 (share 1): with
     ``rehearse_pool`` w each gap keeps (1 - w) x its own share + w x the share fitted to every stand-in at once
