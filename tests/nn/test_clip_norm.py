@@ -179,12 +179,30 @@ def test_norm_both_feeds_corpus_then_clip_inputs_and_cleans(sample, tiny, batch,
         tiny("ebf-free", sample, norm="neither")
 
 
+def _round_trip_cleans_alike(model, sample, path):
+    """Save ``model`` as a checkpoint at ``path``, load it back, check both clean a noisy sample alike (finite, same
+    shape) in both modes; return the loaded network."""
+    from mocapnet.nn.infer import load_model
+
+    model.eval()
+    torch.save(
+        {"state_dict": model.state_dict(), "hyper_parameters": dict(model.hparams), "mocapnet_model": "EBF"}, path
+    )
+    loaded = load_model(path)
+    noisy = sample.channels + np.random.default_rng(1).normal(0.0, 0.5, sample.channels.shape)
+    mask = np.zeros(noisy.shape, dtype=bool)
+    for mode in ("sequence", "windowed"):
+        out = clean_channels(model, noisy, mask, sample.skeleton, sample.fps, mode)
+        np.testing.assert_allclose(clean_channels(loaded, noisy, mask, sample.skeleton, sample.fps, mode), out)
+        assert out.shape == noisy.shape and np.isfinite(out).all()
+    return loaded
+
+
 @pytest.mark.parametrize("norm", ["corpus", "both"])
 def test_sincos_appends_the_angles_sine_and_cosine_and_round_trips(sample, tiny, batch, norm, tmp_path):
     """``sincos=True``: the encoder input is the plain one followed by sin and cos of the raw angles (2C more
     columns, for any ``norm``); it trains, cleans in both modes and survives a checkpoint round trip."""
     from mocapnet.nn.base import n_inputs
-    from mocapnet.nn.infer import load_model
 
     plain, model = tiny("ebf-free", sample, norm=norm), tiny("ebf-free", sample, norm=norm, sincos=True).eval()
     n = batch["filled"].shape[-1]
@@ -199,19 +217,7 @@ def test_sincos_appends_the_angles_sine_and_cosine_and_round_trips(sample, tiny,
     loss = model.training_step(batch | stats, 0)
     loss.backward()
     assert torch.isfinite(loss) and model.encoder[0].weight.grad[:, width:].abs().sum() > 0
-    model.eval()
-    path = tmp_path / "sincos.ckpt"
-    torch.save(
-        {"state_dict": model.state_dict(), "hyper_parameters": dict(model.hparams), "mocapnet_model": "EBF"}, path
-    )
-    loaded = load_model(path)
-    assert loaded.hparams.sincos is True
-    noisy = sample.channels + np.random.default_rng(1).normal(0.0, 0.5, sample.channels.shape)
-    mask = np.zeros(noisy.shape, dtype=bool)
-    for mode in ("sequence", "windowed"):
-        out = clean_channels(model, noisy, mask, sample.skeleton, sample.fps, mode)
-        np.testing.assert_allclose(clean_channels(loaded, noisy, mask, sample.skeleton, sample.fps, mode), out)
-        assert out.shape == noisy.shape and np.isfinite(out).all()
+    assert _round_trip_cleans_alike(model, sample, tmp_path / "sincos.ckpt").hparams.sincos is True
 
 
 @pytest.mark.parametrize("norm", ["clip", "both"])
@@ -297,7 +303,6 @@ def test_delta_inputs_train_clean_round_trip_and_refuse_streaming(sample, tiny, 
     velocity and the deltas, no angle (pose-free: a clip shifted by a constant pose gives the same input). Either
     trains, cleans in both modes, survives a checkpoint round trip, and a stream refuses it by name."""
     from mocapnet.nn.base import frame_deltas, n_inputs
-    from mocapnet.nn.infer import load_model
     from mocapnet.nn.stream import EBFStream
 
     n = batch["filled"].shape[-1]
@@ -316,19 +321,7 @@ def test_delta_inputs_train_clean_round_trip_and_refuse_streaming(sample, tiny, 
     loss = model.training_step(batch | stats, 0)
     loss.backward()
     assert torch.isfinite(loss) and model.encoder[0].weight.grad[:, -2 * n :].abs().sum() > 0
-    model.eval()
-    path = tmp_path / "deltas.ckpt"
-    torch.save(
-        {"state_dict": model.state_dict(), "hyper_parameters": dict(model.hparams), "mocapnet_model": "EBF"}, path
-    )
-    loaded = load_model(path)
-    assert loaded.hparams.deltas == deltas
-    noisy = sample.channels + np.random.default_rng(1).normal(0.0, 0.5, sample.channels.shape)
-    mask = np.zeros(noisy.shape, dtype=bool)
-    for mode in ("sequence", "windowed"):
-        out = clean_channels(model, noisy, mask, sample.skeleton, sample.fps, mode)
-        np.testing.assert_allclose(clean_channels(loaded, noisy, mask, sample.skeleton, sample.fps, mode), out)
-        assert out.shape == noisy.shape and np.isfinite(out).all()
+    assert _round_trip_cleans_alike(model, sample, tmp_path / "deltas.ckpt").hparams.deltas == deltas
     with pytest.raises(ValueError, match="delta inputs"):
         EBFStream(model, sample.skeleton, sample.fps)
     with pytest.raises(ValueError, match="deltas must be one of"):
