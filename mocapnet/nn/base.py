@@ -164,10 +164,14 @@ class CleanerModule(L.LightningModule, ABC):
         mask: torch.Tensor | None = None,
     ) -> torch.Tensor:
         """Scored channels ``[..., T, C]`` (degrees) and root angular velocity ``[..., T, 3]`` (rad/s) →
-        ``[..., T, n_inputs(C)]``: both normalised with ``stats`` (from ``input_stats``), after the same with
+        ``[..., T, n_inputs(C, …)]``: both normalised with ``stats`` (from ``input_stats``), after the same with
         the corpus buffers for ``norm="both"``. ``mask [..., T, C]`` (EBD) goes between the channels and the
         angular velocity of the ``stats`` part (C more columns). With the ``sincos`` hyper-parameter the sine
-        and cosine of ``filled`` come last (2C more columns)."""
+        and cosine of ``filled`` follow (2C more columns); with ``deltas`` the differences of ``frame_deltas``
+        come last (2C more columns; ``"only"`` drops the ``stats``-normalised angles). The deltas at a frame read
+        its neighbours, so a window's inputs depend on one frame beyond it on each side where the caller passes
+        those frames (windowed mode and ``EBF.predict_chunked`` compute the inputs over the whole clip or span).
+        ``n_inputs(C, norm, sincos, deltas)`` columns in all."""
         extra = [] if mask is None else [mask.to(filled.dtype)]
         deltas = self.hparams.get("deltas", "off")
         angles = [] if deltas == "only" else [self.normalise(filled, stats)]

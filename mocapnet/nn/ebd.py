@@ -402,7 +402,7 @@ def rehearse(
     fake, stand_ins = stand_in_gaps(mask, blend.rehearsals, blend.rehearse_min_s * fps)
     if not fake.any():
         return keep
-    passes = max(1, min(blend.rehearse_passes, blend.rehearsals))
+    passes = max(1, min(blend.rehearse_passes, max(map(len, stand_ins))))  # a pass with no stand-in is idle
     trials = []  # per pass: (the interpolation, the blend) with the real gaps and that pass's stand-ins missing
     for k in range(passes):
         hidden = fake if passes == 1 else _stand_in_mask(mask, gaps, stand_ins, k, passes)

@@ -220,7 +220,7 @@ def test_rehearse_passes_hide_each_stand_in_once_in_lighter_passes():
     """``rehearse_passes=P``: P network passes, each hiding the real gaps and every gap's stand-ins i with
     i mod P = pass (the same stand-ins as one pass, split); together they hide each stand-in exactly once; the
     shares of a network that overshoots by 2x stay 1/2; 1 pass is the single-pass rehearsal; more passes than
-    stand-ins run one pass per stand-in."""
+    the most stand-ins any gap got run one pass per stand-in."""
     from mocapnet.fill import gap_fill
 
     truth = smooth_channels(900)
