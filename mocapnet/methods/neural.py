@@ -46,7 +46,7 @@ from mocapnet.kinematics import wrap_near
 from mocapnet.methods.registry import MethodContext, build_method, register
 from mocapnet.motion import Motion, Skeleton
 from mocapnet.nn.variants import SHORT_MAX_S, VARIANTS, accepts, method_of, serves
-from mocapnet.selfcheck import limit_change
+from mocapnet.selfcheck import NOISE_ORDERS, limit_change
 
 _HELP = (
     "{what}; checkpoint: NAME=PATH, default: the shipped one for the skeleton; options mode=sequence|windowed, "
@@ -67,6 +67,10 @@ _EBD_EXTRA = (
     " short=PATH|auto|off (a second EBD for the gaps shorter than short_max_s, default 0.2 s: each gap is filled by"
     " the network made for its length, both with the same options; auto, the default: the shipped ebd's own"
     " short-gap network when the main network is the shipped one, none otherwise)"
+)
+_EBF_EXTRA = (
+    ", limit=K (self-check: each channel changes by at most K x the noise its input shows; 0: off),"
+    " noise_order=2|3|4 (the differences that noise is estimated from; higher counts less of fast motion as noise)"
 )
 _HELP_PAIR = (
     "{what}; checkpoints: EBD,EBF, default: the shipped ones for the skeleton; options mode=sequence|windowed, "
@@ -356,6 +360,7 @@ def _single(method: str):
         checkpoints: Sequence[str] | str = (),
         mode: str = "sequence",
         limit: float | None = None,
+        noise_order: int | None = None,
         tta: str | None = None,
         blend: str | None = None,
         anchor: str | None = None,
@@ -371,6 +376,8 @@ def _single(method: str):
         short_max_s: float | None = None,
     ):
         """``limit``: EBF's self-check factor (``selfcheck.limit_change``; default: the checkpoint's, 0: off).
+        ``noise_order``: the order of the differences the self-check estimates the input's noise from
+        (``selfcheck.noise_level``; default 2; 3 or 4 let less of fast motion count as noise).
         ``tta``: the self-ensemble (``tta_passes``). ``blend``: an angle method whose output is averaged with
         the network's (weight 1/2, on the circle) — a blend, reported under its own method string. ``anchor``:
         an angle method the self-check measures the network's change from (``limit_change(anchor=…)``: each
@@ -396,6 +403,12 @@ def _single(method: str):
         _check_mode(mode)
         if limit is not None and not (isinstance(limit, (int, float)) and limit >= 0):
             raise ValueError(f"{method}: limit must be a number >= 0, got {limit!r}")
+        if noise_order is not None and (
+            method == "ebd" or isinstance(noise_order, bool) or noise_order not in NOISE_ORDERS
+        ):
+            raise ValueError(
+                f"{method}: noise_order is the EBF self-check's, one of {NOISE_ORDERS}; got {noise_order!r}"
+            )
         try:
             passes = tta_passes(tta)
         except ValueError as exc:
@@ -448,18 +461,20 @@ def _single(method: str):
             sk, fps = noisy.skeleton, noisy.fps
             gap_blend = blend_of(model)
 
-            own_check = 0.0 if anchored is not None else limit  # an anchored check replaces the network's own
+            own = anchored is None and noise_order in (None, 2)  # else this check replaces the network's own
+            own_check = limit if own else 0.0
 
             def once(channels: np.ndarray, gaps: np.ndarray) -> np.ndarray:
                 return clean_channels(model, channels, gaps, sk, fps, mode, gap_blend, change_limit=own_check)
 
             idx = scored_index(sk)
             out = self_ensemble(once, noisy.channels, mask, idx, passes)
-            if anchored is not None:
+            if not own:
                 factor = float(model.hparams.get("change_limit", 0.0)) if limit is None else limit
                 if factor > 0:
                     seen = lerp_fill(noisy.channels[:, idx], mask[:, idx])
-                    out[:, idx] = limit_change(seen, out[:, idx], factor, anchor=anchored(noisy, mask)[:, idx])
+                    base = None if anchored is None else anchored(noisy, mask)[:, idx]
+                    out[:, idx] = limit_change(seen, out[:, idx], factor, anchor=base, order=noise_order or 2)
             if partner is not None:
                 out[:, idx] = tta_mean([out[:, idx], partner(noisy, mask)[:, idx]])
             return out
@@ -482,7 +497,7 @@ _WHAT = {v.name: v.what for v in VARIANTS}
 _WHAT["ebf"] += f": {_shipped_ebf_recipes()}"
 _WHAT["ebd"] += f" (shipped: {_shipped_ebd_networks()})"
 for _name, _what in _WHAT.items():
-    _extra = _EBD_EXTRA if _name == "ebd" else ""
+    _extra = _EBD_EXTRA if _name == "ebd" else _EBF_EXTRA
     register(_name, "angles", help=_HELP.format(what=_what, extra=_extra))(_single(_name))
 
 
