@@ -199,3 +199,22 @@ def test_limit_change_with_an_anchor_caps_the_distance_from_it():
     np.testing.assert_allclose(out[:, 0], cleaned[:, 0])
     np.testing.assert_allclose(np.sqrt(((out - anchor)[:, 1:] ** 2).mean(0)), cap[1:])
     np.testing.assert_array_equal(limit_change(noisy, cleaned, 1.0), limit_change(noisy, cleaned, 1.0, anchor=noisy))
+
+
+def test_noise_level_of_higher_order_ignores_slow_polynomials_and_finds_white_noise():
+    """Differences of order n cancel a polynomial of degree < n: a cubic shows no noise at order 4 and much at
+    order 2; white noise of std 2 reads about 2 at every order; order 2 is the default; other orders refused."""
+    from mocapnet.selfcheck import NOISE_ORDERS, limit_change, noise_level
+
+    t = np.arange(600.0)[:, None]
+    cubic = 1e-5 * (t - 300.0) ** 3 * np.array([1.0, -2.0])
+    assert (noise_level(cubic, 4) < 1e-6).all() and (noise_level(cubic, 2) > 1e-3).all()
+    white = np.random.default_rng(0).normal(0.0, 2.0, (20000, 2))
+    for order in NOISE_ORDERS:
+        np.testing.assert_allclose(noise_level(white, order), 2.0, rtol=0.05)
+    np.testing.assert_array_equal(noise_level(white), noise_level(white, 2))
+    assert (noise_level(white[:4], 4) == 0).all()
+    cleaned = white * 0.0
+    np.testing.assert_array_equal(limit_change(white, cleaned, 1.0), limit_change(white, cleaned, 1.0, order=2))
+    with pytest.raises(ValueError, match="noise order"):
+        noise_level(white, 5)

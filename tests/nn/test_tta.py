@@ -165,3 +165,25 @@ def test_anchor_option_caps_each_channel_near_the_anchor_method(clip, ebf_path):
     assert (free_distance > cap + 1e-6).any()  # the cap did bind somewhere
     unscored = np.setdiff1d(np.arange(clip.channels.shape[1]), idx)
     np.testing.assert_array_equal(anchored[:, unscored], free[:, unscored])
+
+
+def test_noise_order_option_caps_each_change_at_the_noise_seen_by_that_order(clip, ebf_path):
+    """``noise_order=4``: the network's own self-check is replaced by one whose cap is ``limit`` x the noise
+    estimated from 4th differences; ``noise_order=2`` is the network's own check; bad orders are refused."""
+    from mocapnet.fill import lerp_fill
+    from mocapnet.selfcheck import noise_level
+
+    noisy, mask = noisy_copy(clip)
+    idx = scored_index(clip.skeleton)
+    seen = lerp_fill(noisy.channels, mask)[:, idx]
+    free = build_method(f"ebf={ebf_path}:limit=0").clean(noisy, mask)
+    fourth = build_method(f"ebf={ebf_path}:noise_order=4,limit=0.2").clean(noisy, mask)
+    change = np.sqrt((wrap_deg(fourth - lerp_fill(noisy.channels, mask))[:, idx] ** 2).mean(axis=0))
+    cap = 0.2 * noise_level(seen, 4)
+    assert (change <= cap + 1e-9).all()
+    assert (np.sqrt((wrap_deg(free[:, idx] - seen) ** 2).mean(axis=0)) > cap + 1e-6).any()  # the cap bound
+    second = build_method(f"ebf={ebf_path}:noise_order=2,limit=0.2").clean(noisy, mask)
+    np.testing.assert_array_equal(second, build_method(f"ebf={ebf_path}:limit=0.2").clean(noisy, mask))
+    for bad in ("noise_order=5", "noise_order=true"):
+        with pytest.raises(ValueError, match="noise_order"):
+            build_method(f"ebf={ebf_path}:{bad}")
