@@ -28,6 +28,7 @@ from mocapnet.evaluate.results import provenance, provenance_header, write_resul
 from mocapnet.fill import gaussian_smooth, lerp_fill
 from mocapnet.kinematics import wrap_deg
 from mocapnet.motion import Motion
+from mocapnet.threads import pin_threads
 
 ROOT = Path(__file__).resolve().parents[1]
 CORRUPTIONS = ("gaps", "gaps-long", "noise+gaps", "angular-0.5", "spatial-0.5cm")
@@ -69,6 +70,7 @@ def main() -> None:
     parser.add_argument("--margin", type=float, default=10.0, help="degrees from ±90 that count as locked (10)")
     parser.add_argument("--out", default=None, help="path without suffix")
     args = parser.parse_args()
+    pin_threads(1)
     load = os.getloadavg()
     _, clips, _ = split_clips(args.corpus, "test", args.clips)
     joints: Counter[str] = Counter()

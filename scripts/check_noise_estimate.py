@@ -23,6 +23,7 @@ import numpy as np
 from mocapnet.corrupt import corrupt_motion, seed_for
 from mocapnet.evaluate.neural_bench import split_clips
 from mocapnet.evaluate.results import provenance, provenance_header, write_results
+from mocapnet.threads import pin_threads
 
 ROOT = Path(__file__).resolve().parents[1]
 SETS = (("content:run", 60), ("style:elderly", 30), ("val", 30))
@@ -41,6 +42,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--out", help="path without suffix (default benchmarks/results/noise_estimate)")
     args = parser.parse_args()
+    pin_threads(1)
     load = os.getloadavg()
     rows = []
     for split, n_clips in SETS:
