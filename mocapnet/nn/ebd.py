@@ -405,8 +405,7 @@ def rehearse(
     passes = max(1, min(blend.rehearse_passes, max(map(len, stand_ins))))  # a pass with no stand-in is idle
     trials = []  # per pass: (the interpolation, the blend) with the real gaps and that pass's stand-ins missing
     for k in range(passes):
-        hidden = fake if passes == 1 else _stand_in_mask(mask, gaps, stand_ins, k, passes)
-        both = mask | hidden
+        both = mask | _stand_in_mask(mask, gaps, stand_ins, k, passes)
         trial = np.where(both, np.nan, channels)
         base = gap_fill(trial, both, blend.spline_max_s * fps)
         trials.append((base, blend_gaps(trial, both, network(both), fps, replace(blend, rehearsals=0))[0]))
