@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import argparse
 import os
-from math import comb
 from pathlib import Path
 
 import numpy as np
@@ -23,19 +22,12 @@ import numpy as np
 from mocapnet.corrupt import corrupt_motion, seed_for
 from mocapnet.evaluate.neural_bench import split_clips
 from mocapnet.evaluate.results import provenance, provenance_header, write_results
+from mocapnet.selfcheck import noise_level
 from mocapnet.threads import pin_threads
 
 ROOT = Path(__file__).resolve().parents[1]
 SETS = (("content:run", 60), ("style:elderly", 30), ("val", 30))
 ORDERS = (2, 3, 4)
-
-
-def noise_estimate(x: np.ndarray, order: int) -> np.ndarray:
-    """``selfcheck.noise_level`` with differences of ``order``: white-noise std ``[C]`` (degrees) that
-    ``x [T, C]`` (degrees) shows; order 2 is ``noise_level`` itself."""
-    d = np.diff(np.unwrap(x, period=360.0, axis=0), n=order, axis=0)
-    d -= np.median(d, axis=0)
-    return 1.4826 * np.median(np.abs(d), axis=0) / np.sqrt(comb(2 * order, order))
 
 
 def main() -> None:
@@ -56,8 +48,8 @@ def main() -> None:
             truth = motion.channels[:, scored]
             added = np.maximum((noisy - truth).std(axis=0), 1e-9)
             for k in ORDERS:
-                clean[k].append(float(np.sqrt(np.mean(noise_estimate(truth, k) ** 2))))
-                ratio[k].extend((noise_estimate(noisy, k) / added).tolist())
+                clean[k].append(float(np.sqrt(np.mean(noise_level(truth, k) ** 2))))
+                ratio[k].extend((noise_level(noisy, k) / added).tolist())
         for k in ORDERS:
             rows.append(
                 {
