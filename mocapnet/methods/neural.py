@@ -42,11 +42,12 @@ from pathlib import Path
 import numpy as np
 
 from mocapnet.fill import gap_lengths, lerp_fill
-from mocapnet.kinematics import wrap_near
+from mocapnet.kinematics import wrap_deg, wrap_near
 from mocapnet.methods.registry import MethodContext, build_method, register
 from mocapnet.motion import Motion, Skeleton
 from mocapnet.nn.variants import SHORT_MAX_S, VARIANTS, accepts, method_of, serves
 from mocapnet.selfcheck import NOISE_ORDERS, limit_change
+from mocapnet.sure import sure_mix
 
 _HELP = (
     "{what}; checkpoint: NAME=PATH, default: the shipped one for the skeleton; options mode=sequence|windowed, "
@@ -354,6 +355,46 @@ def _blend_partner(method: str, blend: str | None, context: MethodContext, optio
     return build_method(str(blend), context, space="angles").clean
 
 
+def _blend_weight(method: str, weight: float | str | None, blending: bool) -> float | str | None:
+    """The ``blend_weight`` option checked: None (the mean), ``"sure"`` or a number in [0, 1]; ValueError
+    naming the method otherwise, or when there is no ``blend`` to weigh."""
+    if weight is None:
+        return None
+    if not blending:
+        raise ValueError(f"{method}: blend_weight weighs a blend; give blend=METHOD too")
+    if weight == "sure":
+        return weight
+    if isinstance(weight, bool) or not isinstance(weight, (int, float)) or not 0.0 <= weight <= 1.0:
+        raise ValueError(f"{method}: blend_weight must be sure or a number in [0, 1], got {weight!r}")
+    return float(weight)
+
+
+def sure_blend(
+    noisy: Motion,
+    mask: np.ndarray,
+    idx: np.ndarray,
+    network: Callable[[Motion], np.ndarray],
+    partner: Callable[[Motion], np.ndarray],
+) -> np.ndarray:
+    """``network(noisy) -> [T, C]`` with its scored channels ``idx`` mixed with ``partner``'s by the clip's SURE
+    weight (``mocapnet.sure.sure_mix``, the observed samples of ``mask [T, C]``; missing ones bridged linearly
+    for the noise estimate and the probe)."""
+    seen = lerp_fill(noisy.channels[:, idx], mask[:, idx])
+
+    def scored(clean: Callable[[Motion], np.ndarray]) -> Callable[[np.ndarray], np.ndarray]:
+        def run(values: np.ndarray) -> np.ndarray:
+            channels = noisy.channels.copy()
+            channels[:, idx] = values
+            return clean(noisy.with_channels(channels))[:, idx]
+
+        return run
+
+    out = network(noisy)
+    theirs = partner(noisy)[:, idx]
+    out[:, idx], _ = sure_mix(seen, ~mask[:, idx], out[:, idx], theirs, scored(network), scored(partner))
+    return out
+
+
 def _single(method: str):
     def factory(
         context: MethodContext,
@@ -363,6 +404,7 @@ def _single(method: str):
         noise_order: int | None = None,
         tta: str | None = None,
         blend: str | None = None,
+        blend_weight: float | str | None = None,
         anchor: str | None = None,
         rehearse: int | None = None,
         rehearse_margin: float | None = None,
@@ -379,7 +421,10 @@ def _single(method: str):
         ``noise_order``: the order of the differences the self-check estimates the input's noise from
         (``selfcheck.noise_level``; default 2; 3 or 4 let less of fast motion count as noise).
         ``tta``: the self-ensemble (``tta_passes``). ``blend``: an angle method whose output is averaged with
-        the network's (weight 1/2, on the circle) — a blend, reported under its own method string. ``anchor``:
+        the network's (weight 1/2, on the circle) — a blend, reported under its own method string.
+        ``blend_weight``: the network's weight in that blend, a number in [0, 1] or ``sure``: per clip, the weight
+        that minimises Stein's unbiased estimate of the error (``mocapnet.sure.sure_mix``; each cleaner runs
+        once more per probe, ``sure.PROBES``). ``anchor``:
         an angle method the self-check measures the network's change from (``limit_change(anchor=…)``: each
         channel's RMS distance from that method's output capped at ``limit`` × the input's noise).
         ``rehearse``, ``rehearse_margin``, ``rehearse_min_s``, ``rehearse_mix``, ``rehearse_pool``,
@@ -414,6 +459,7 @@ def _single(method: str):
         except ValueError as exc:
             raise ValueError(f"{method}: {exc}") from None
         partner = _blend_partner(method, blend, context)
+        weight = _blend_weight(method, blend_weight, partner is not None)
         anchored = _blend_partner(method, anchor, context, option="anchor")
         rehearsal = {
             k: v
@@ -463,20 +509,27 @@ def _single(method: str):
 
             own = anchored is None and noise_order in (None, 2)  # else this check replaces the network's own
             own_check = limit if own else 0.0
+            factor = float(model.hparams.get("change_limit", 0.0)) if limit is None else limit
+            idx = scored_index(sk)
 
             def once(channels: np.ndarray, gaps: np.ndarray) -> np.ndarray:
                 return clean_channels(model, channels, gaps, sk, fps, mode, gap_blend, change_limit=own_check)
 
-            idx = scored_index(sk)
-            out = self_ensemble(once, noisy.channels, mask, idx, passes)
-            if not own:
-                factor = float(model.hparams.get("change_limit", 0.0)) if limit is None else limit
-                if factor > 0:
-                    seen = lerp_fill(noisy.channels[:, idx], mask[:, idx])
-                    base = None if anchored is None else anchored(noisy, mask)[:, idx]
+            def network(motion: Motion) -> np.ndarray:
+                out = self_ensemble(once, motion.channels, mask, idx, passes)
+                if not own and factor > 0:
+                    seen = lerp_fill(motion.channels[:, idx], mask[:, idx])
+                    base = None if anchored is None else anchored(motion, mask)[:, idx]
                     out[:, idx] = limit_change(seen, out[:, idx], factor, anchor=base, order=noise_order or 2)
-            if partner is not None:
-                out[:, idx] = tta_mean([out[:, idx], partner(noisy, mask)[:, idx]])
+                return out
+
+            if partner is None:
+                return network(noisy)
+            if weight == "sure":
+                return sure_blend(noisy, mask, idx, network, lambda motion: partner(motion, mask))
+            out = network(noisy)
+            ours, theirs = out[:, idx], partner(noisy, mask)[:, idx]
+            out[:, idx] = tta_mean([ours, theirs]) if weight is None else theirs + weight * wrap_deg(ours - theirs)
             return out
 
         def clean(noisy: Motion, mask: np.ndarray) -> np.ndarray:

@@ -187,3 +187,42 @@ def test_noise_order_option_caps_each_change_at_the_noise_seen_by_that_order(cli
     for bad in ("noise_order=5", "noise_order=true"):
         with pytest.raises(ValueError, match="noise_order"):
             build_method(f"ebf={ebf_path}:{bad}")
+
+
+def test_blend_weight_option_weighs_the_network_against_the_partner(clip, ebf_path):
+    """``blend_weight=1`` is the network alone, ``0`` the partner alone, ``0.5`` the circular mean; ``sure`` a
+    weight in between that repeats for the same input; unscored channels stay the network's."""
+    noisy, mask = noisy_copy(clip)
+    idx = scored_index(clip.skeleton)
+    net = build_method(f"ebf={ebf_path}").clean(noisy, mask)
+    smooth = build_method("gaussian-cv").clean(noisy, mask)
+
+    def weighted(weight: object) -> np.ndarray:
+        return build_method(f"ebf={ebf_path}:blend=gaussian-cv,blend_weight={weight}").clean(noisy, mask)
+
+    circular_close(weighted(1)[:, idx], net[:, idx], atol=1e-9)
+    circular_close(weighted(0)[:, idx], smooth[:, idx], atol=1e-9)
+    circular_close(weighted(0.5)[:, idx], tta_mean([net[:, idx], smooth[:, idx]]), atol=1e-9)
+    sure = weighted("sure")
+    np.testing.assert_array_equal(sure, weighted("sure"))
+    d = wrap_deg(net[:, idx] - smooth[:, idx])
+    w = np.sum(wrap_deg(sure[:, idx] - smooth[:, idx]) * d) / np.sum(d * d)  # one weight for the clip
+    assert 0.0 <= w <= 1.0
+    circular_close(sure[:, idx], smooth[:, idx] + w * d, atol=1e-6)
+    unscored = ~clip.skeleton.scored_mask
+    np.testing.assert_array_equal(sure[:, unscored], net[:, unscored])
+
+
+def test_sure_blend_with_gaps_keeps_the_shape_and_scores_observed_samples_only(clip, ebf_path):
+    noisy, mask = noisy_copy(clip, "gaps")
+    assert mask.any()
+    out = build_method(f"ebf={ebf_path}:blend=gaussian-cv,blend_weight=sure").clean(noisy, mask)
+    assert out.shape == clip.channels.shape and np.isfinite(out[:, scored_index(clip.skeleton)]).all()
+
+
+def test_bad_blend_weights_are_refused_by_name(ebf_path):
+    with pytest.raises(ValueError, match="ebf: blend_weight weighs a blend"):
+        build_method(f"ebf={ebf_path}:blend_weight=sure")
+    for bad in ("1.5", "-0.1", "best", "true"):
+        with pytest.raises(ValueError, match="ebf: blend_weight must be sure or a number"):
+            build_method(f"ebf={ebf_path}:blend=gaussian-cv,blend_weight={bad}")

@@ -1,0 +1,104 @@
+"""``mocapnet.sure``: Stein's unbiased risk estimate, the probe divergence and the per-clip mix of two cleaners."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.ndimage import gaussian_filter1d
+
+from mocapnet.sure import PROBE_FLOOR_DEG, PROBE_STEP, divergence, probe, sure_mix, sure_weight
+
+
+def smooth(width: float):
+    """A linear cleaner: a Gaussian of std ``width`` frames along time (nearest-value edges)."""
+    return lambda y: gaussian_filter1d(y, width, axis=0, mode="nearest")
+
+
+def identity(y: np.ndarray) -> np.ndarray:
+    return y.copy()
+
+
+def signal(n_frames: int = 600, n_channels: int = 6) -> np.ndarray:
+    t = np.arange(n_frames)[:, None] / 30.0
+    return 40.0 * np.sin(2 * np.pi * 0.3 * t * (1 + np.arange(n_channels)) / n_channels)
+
+
+def test_probe_steps_follow_each_channel_noise_and_repeat_with_the_seed():
+    sigma = np.array([2.0, 0.0, 10.0])
+    step = probe((50, 3), sigma)
+    expected = np.broadcast_to([PROBE_STEP * 2.0, PROBE_FLOOR_DEG, PROBE_STEP * 10], (50, 3))
+    np.testing.assert_allclose(np.abs(step), expected)
+    np.testing.assert_array_equal(step, probe((50, 3), sigma))
+    assert not np.array_equal(step, probe((50, 3), sigma, seed=1))
+
+
+def test_divergence_of_the_identity_counts_the_observed_samples():
+    y = signal()
+    observed = np.ones(y.shape, dtype=bool)
+    observed[100:130, 2] = False
+    step = np.where(observed, probe(y.shape, np.ones(y.shape[1])), 1.0)
+    div = divergence(y, y + np.where(observed, step, 0.0), step, observed)
+    np.testing.assert_allclose(div, observed.sum(axis=0))
+
+
+def test_divergence_of_a_linear_smoother_is_close_to_its_trace():
+    """For a Gaussian of std 2 frames the trace is about T x its centre tap (0.1995); probes averaged."""
+    y = signal(2000, 4)
+    f = smooth(2.0)
+    observed = np.ones(y.shape, dtype=bool)
+    divs = [divergence(f(y), f(y + s), s, observed) for s in (probe(y.shape, np.ones(4), k) for k in range(8))]
+    np.testing.assert_allclose(np.mean(divs, axis=0) / len(y), 0.1995, atol=0.01)
+
+
+def test_sure_weight_finds_the_better_cleaner_on_white_noise():
+    """Heavy noise: the smoother wins (w near 1 for f = smoother, g = identity); no noise: the identity."""
+    rng = np.random.default_rng(0)
+    x = signal(3000, 4)
+    observed = np.ones(x.shape, dtype=bool)
+    for sigma, expect in ((3.0, 1.0), (0.0, 0.0)):
+        y = x + sigma * rng.standard_normal(x.shape)
+        f, g = smooth(2.0), identity
+        mixed, w = sure_mix(y, observed, f(y), g(y), f, g)
+        assert w == pytest.approx(expect, abs=0.1)
+        np.testing.assert_allclose(mixed, g(y) + w * (f(y) - g(y)), atol=1e-9)
+
+
+def test_sure_weight_is_near_the_oracle_weight_between_two_smoothers():
+    rng = np.random.default_rng(1)
+    x = signal(3000, 6)
+    y = x + 2.0 * rng.standard_normal(x.shape)
+    f, g = smooth(1.0), smooth(6.0)
+    observed = np.ones(x.shape, dtype=bool)
+    _, w = sure_mix(y, observed, f(y), g(y), f, g)
+    d, e = f(y) - g(y), x - g(y)
+    oracle = float(np.clip(np.sum(e * d) / np.sum(d * d), 0.0, 1.0))
+    assert w == pytest.approx(oracle, abs=0.1)
+    error = [np.sqrt(np.mean((g(y) + v * d - x) ** 2)) for v in (w, oracle)]
+    assert error[0] <= 1.02 * error[1]
+
+
+def test_agreeing_cleaners_or_unobserved_differences_leave_the_mean():
+    y = signal()
+    observed = np.ones(y.shape, dtype=bool)
+    assert sure_weight(y, y, y, np.zeros(6), np.zeros(6), np.ones(6), observed) == 0.5
+    f = y.copy()
+    f[10:20, 1] += 5.0  # they differ only where nothing was observed
+    observed[10:20, 1] = False
+    assert sure_weight(y, f, y, np.zeros(6), np.zeros(6), np.ones(6), observed) == 0.5
+
+
+def test_sure_weight_is_clipped_to_the_two_cleaners():
+    y = signal()
+    observed = np.ones(y.shape, dtype=bool)
+    far = y + 1.0
+    assert sure_weight(y, far, y + 2.0, np.zeros(6), np.zeros(6), np.zeros(6), observed) == 1.0
+    assert sure_weight(y, y + 2.0, far, np.zeros(6), np.zeros(6), np.zeros(6), observed) == 0.0
+
+
+def test_the_mix_takes_differences_on_the_circle():
+    """Outputs either side of ±180: the mix stays near them, not at 0."""
+    y = np.full((200, 1), 179.0)
+    out_f, out_g = np.full((200, 1), 179.5), np.full((200, 1), -179.5)
+    mixed, w = sure_mix(y, np.ones(y.shape, dtype=bool), out_f, out_g, lambda v: out_f, lambda v: out_g)
+    assert 0.0 <= w <= 1.0
+    assert np.all(np.abs(((mixed + 180.0) % 360.0) - 180.0) >= 179.5 - 1e-9)
