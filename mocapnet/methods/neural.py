@@ -25,6 +25,7 @@ Test-time augmentation (a self-ensemble, option ``tta``) and blending (option ``
     --method ebf:tta=warp              mean over the clip at 1×, 0.9× and 1.1× speed (3 passes)
     --method ebf:tta=reverse+warp      both (6 passes)
     --method ebf:blend=gaussian-tuned  a blend, not EBF: mean of EBF's output and that angle method's
+    --method ebf:blend=gaussian-cv,blend_weight=sure   the same, the network's weight chosen per clip by SURE
 
 Each pass is ``infer.clean_channels`` on a transformed copy (reversed in time; resampled by linear
 interpolation of the unwrapped channels), whose output is transformed back; the passes' scored channels are
@@ -51,8 +52,7 @@ from mocapnet.sure import sure_mix
 
 _HELP = (
     "{what}; checkpoint: NAME=PATH, default: the shipped one for the skeleton; options mode=sequence|windowed, "
-    "tta=reverse|warp|reverse+warp (self-ensemble), blend=METHOD (mean with an angle method), anchor=METHOD "
-    "(the self-check caps the distance from that method's output instead of from the input){extra}"
+    "tta=reverse|warp|reverse+warp (self-ensemble){extra}"
 )
 _EBD_EXTRA = (
     ", rehearse=N (per gap N stand-in gaps where the truth is known; a gap keeps the share of the network's correction"
@@ -70,6 +70,9 @@ _EBD_EXTRA = (
     " short-gap network when the main network is the shipped one, none otherwise)"
 )
 _EBF_EXTRA = (
+    ", blend=METHOD (mean with an angle method; blend_weight=W: the network's weight in [0, 1], or sure: chosen per"
+    " clip by Stein's unbiased risk estimate), anchor=METHOD (the self-check caps the distance from that method's"
+    " output instead of from the input)"
     ", limit=K (self-check: each channel changes by at most K x the noise its input shows; 0: off),"
     " noise_order=2|3|4 (the differences that noise is estimated from; higher counts less of fast motion as noise)"
 )
