@@ -5,6 +5,7 @@ changed by much more than the noise that channel shows. Numpy only (EBF's checkp
 
 from __future__ import annotations
 
+import warnings
 from math import comb
 
 import numpy as np
@@ -17,21 +18,40 @@ NOISE_ORDERS = (2, 3, 4)
 COLUMN_BLOCK = 8
 
 
-def noise_level(x: np.ndarray, order: int = 2) -> np.ndarray:
+def observed_stencils(observed: np.ndarray, order: int = 2) -> np.ndarray:
+    """``[T - order, C]`` bool: the differences of ``order`` whose ``order + 1`` samples are all observed
+    (``observed [T, C]`` bool)."""
+    ok = np.asarray(observed, dtype=bool)
+    return np.logical_and.reduce([ok[k : len(ok) - order + k] for k in range(order + 1)])
+
+
+def noise_level(x: np.ndarray, order: int = 2, observed: np.ndarray | None = None) -> np.ndarray:
     """Standard deviation ``[C]`` (degrees) of white noise that ``x [T, C]`` (degrees) shows, from its differences
     of ``order`` (2, 3 or 4; ``C(2n, n)·σ²`` for white noise, 6σ² at order 2): ``1.4826·MAD / √C(2n, n)``, robust
     to spikes; the motion's own curvature can only raise it, less at a higher order (fast bandai2 ``run`` clips,
-    clean: 0.958° at order 2, 0.429° at order 4; ``scripts/check_noise_estimate.py``). Zeros for fewer than
-    ``order + 1`` frames."""
+    clean: 0.958° at order 2, 0.429° at order 4; ``scripts/check_noise_estimate.py``). ``observed [T, C]`` (bool):
+    only differences of observed samples count (``observed_stencils``; a linear bridge over a gap shows no noise
+    and would pull the estimate down). Zeros for fewer than ``order + 1`` frames, or a channel with no such
+    difference."""
     if order not in NOISE_ORDERS:
         raise ValueError(f"noise order must be one of {NOISE_ORDERS}, got {order!r}")
     out = np.zeros(x.shape[1])
     if len(x) <= order:
         return out
+    valid = None if observed is None else observed_stencils(observed, order)
     for c in range(0, x.shape[1], COLUMN_BLOCK):
-        d = np.diff(np.unwrap(x[:, c : c + COLUMN_BLOCK], period=360.0, axis=0), n=order, axis=0)
-        d -= np.median(d, axis=0)
-        out[c : c + COLUMN_BLOCK] = 1.4826 * np.median(np.abs(d, out=d), axis=0) / np.sqrt(comb(2 * order, order))
+        cols = slice(c, c + COLUMN_BLOCK)
+        d = np.diff(np.unwrap(x[:, cols], period=360.0, axis=0), n=order, axis=0)
+        if valid is None:
+            d -= np.median(d, axis=0)
+            mad = np.median(np.abs(d, out=d), axis=0)
+        else:
+            d[~valid[:, cols]] = np.nan
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)  # a channel without an observed difference
+                d -= np.nanmedian(d, axis=0)
+                mad = np.nan_to_num(np.nanmedian(np.abs(d), axis=0))
+        out[cols] = 1.4826 * mad / np.sqrt(comb(2 * order, order))
     return out
 
 

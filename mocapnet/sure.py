@@ -11,8 +11,11 @@ estimated error pooled over the channels is a closed form (the estimate is quadr
 ``f`` mixed so with a training-free smoother ``g`` leans on ``g`` where the network is out of its depth (motion
 it never saw) and on ``f`` where it is not. The estimate is exact in expectation only for white noise of known
 variance; here the variance is the self-check's estimate from the input (``selfcheck.noise_level``), and noise
-that is not white (slow drifts, noise shared by channels) misleads it — the weight stays between the two
-cleaners' outputs whatever it estimates. Numpy only; angles in degrees, differences wrapped.
+that is not white (slow drifts, noise shared by channels, noise through IK that follows the pose) misleads it —
+the weight stays between the two cleaners' outputs whatever it estimates. A cleaner that picks among discrete
+settings (``gaussian-cv``'s widths) jumps where a probe changes its pick; SURE assumes no jumps, and the probes
+count them as slope (a review measured 1.8× the spread of the estimate with the widths held fixed, the mean
+nearly unchanged). Numpy only; angles in degrees, differences wrapped.
 """
 
 from __future__ import annotations
@@ -22,7 +25,7 @@ from collections.abc import Callable
 import numpy as np
 
 from mocapnet.kinematics import wrap_deg
-from mocapnet.selfcheck import noise_level
+from mocapnet.selfcheck import noise_level, observed_stencils
 
 #: Probe step as a fraction of each channel's estimated noise σ (small enough to see the local slope, large
 #: enough for float32 networks), and its floor in degrees.
@@ -33,6 +36,8 @@ PROBE_SEED = 0
 #: Probes whose divergences are averaged: one probe's weight varies by ±0.14 from probe to probe (bandai2 fold-1
 #: clips, angular-0.5); four gave the error of eight there (``benchmarks/EXPERIMENTS.md``, session 29).
 PROBES = 4
+#: Observed differences a channel needs for its noise estimate to count (fewer: left out of the weight).
+MIN_DIFFERENCES = 8
 
 
 def probe(shape: tuple[int, int], sigma: np.ndarray, seed: int = PROBE_SEED) -> np.ndarray:
@@ -42,12 +47,12 @@ def probe(shape: tuple[int, int], sigma: np.ndarray, seed: int = PROBE_SEED) -> 
     return signs * np.maximum(PROBE_STEP * np.asarray(sigma, dtype=np.float64), PROBE_FLOOR_DEG)
 
 
-def divergence(out: np.ndarray, probed_out: np.ndarray, step: np.ndarray, observed: np.ndarray) -> np.ndarray:
+def divergence(out: np.ndarray, probed_out: np.ndarray, step: np.ndarray, counted: np.ndarray) -> np.ndarray:
     """Per-channel divergence ``[C]`` of a cleaner from its output ``out [T, C]`` on the input and
-    ``probed_out [T, C]`` on the input plus ``step [T, C]`` (``probe``): ``Σ_t (Δout_tc / step_tc)`` over the
-    ``observed [T, C]`` samples (``b·Δ/ε`` with ``b = ±1``)."""
-    ratio = wrap_deg(probed_out - out) / step
-    return np.sum(np.where(observed, ratio, 0.0), axis=0)
+    ``probed_out [T, C]`` on the input plus a probe (``probe``): ``Σ_t Δout_tc / step_tc`` over the ``counted [T, C]``
+    samples (``b·Δ/ε`` with ``b = ±1``). ``step [T, C]``: the probe, non-zero wherever ``counted``."""
+    ratio = wrap_deg(probed_out - out) / np.where(counted, step, 1.0)
+    return np.sum(np.where(counted, ratio, 0.0), axis=0)
 
 
 def sure_weight(
@@ -57,19 +62,22 @@ def sure_weight(
     div_f: np.ndarray,
     div_g: np.ndarray,
     variance: np.ndarray,
-    observed: np.ndarray,
+    counted: np.ndarray,
 ) -> float:
     """The weight ``w`` in [0, 1] of ``f`` in the mix ``g + w (f − g)`` that minimises SURE pooled over the
-    channels and ``observed [T, C]`` samples (bool). ``noisy``, ``f``, ``g``: ``[T, C]`` degrees (the input and the
-    two cleaners' outputs); ``div_f``, ``div_g``: ``[C]`` (``divergence``); ``variance``: ``[C]`` noise variance
-    (deg²). 0.5 when the two outputs agree everywhere (nothing to choose)."""
-    d = np.where(observed, wrap_deg(f - g), 0.0)
-    r = np.where(observed, wrap_deg(noisy - g), 0.0)
+    ``counted [T, C]`` samples (bool; only their channels' ``div`` and ``variance`` enter). ``noisy``, ``f``, ``g``:
+    ``[T, C]`` degrees (the input and the two cleaners' outputs); ``div_f``, ``div_g``: ``[C]`` (``divergence``);
+    ``variance``: ``[C]`` noise variance (deg²). 0.5 when the two outputs agree on every counted sample (nothing to
+    choose) or the estimate is not finite."""
+    d = np.where(counted, wrap_deg(f - g), 0.0)
+    r = np.where(counted, wrap_deg(noisy - g), 0.0)
     spread = float(np.sum(d * d))
-    if spread <= 1e-12:
+    if not spread > 1e-12:
         return 0.5
-    w = (float(np.sum(r * d)) - float(np.sum(variance * (div_f - div_g)))) / spread
-    return float(np.clip(w, 0.0, 1.0))
+    channels = counted.any(axis=0)
+    penalty = float(np.sum(np.where(channels, variance * (div_f - div_g), 0.0)))
+    w = (float(np.sum(r * d)) - penalty) / spread
+    return float(np.clip(w, 0.0, 1.0)) if np.isfinite(w) else 0.5
 
 
 def sure_mix(
@@ -79,19 +87,27 @@ def sure_mix(
     out_g: np.ndarray,
     f: Callable[[np.ndarray], np.ndarray],
     g: Callable[[np.ndarray], np.ndarray],
+    order: int = 2,
 ) -> tuple[np.ndarray, float]:
-    """``(out_g + w (out_f − out_g), w)``: the outputs ``out_f``, ``out_g`` ``[T, C]`` (degrees) of two cleaners
-    ``f``, ``g`` (``[T, C] -> [T, C]``) on ``noisy [T, C]`` mixed with the SURE weight (``sure_weight``): the noise
-    variance from ``noisy``'s differences (``selfcheck.noise_level``; the caller bridges missing samples
-    linearly), the divergences from ``PROBES`` probes of the ``observed [T, C]`` samples (each cleaner runs
-    once more per probe, on ``noisy`` plus the probe). The result is on ``out_g``'s branch of the circle."""
-    sigma = noise_level(noisy)
-    div_f = np.zeros(noisy.shape[1])
-    div_g = np.zeros(noisy.shape[1])
-    for k in range(PROBES):
-        step = np.where(observed, probe(noisy.shape, sigma, PROBE_SEED + k), 0.0)
-        safe = np.where(observed, step, 1.0)
-        div_f += divergence(out_f, f(noisy + step), safe, observed) / PROBES
-        div_g += divergence(out_g, g(noisy + step), safe, observed) / PROBES
-    w = sure_weight(noisy, out_f, out_g, div_f, div_g, sigma**2, observed)
-    return out_g + w * wrap_deg(out_f - out_g), w
+    """``(out_f + (1 − w) (out_g − out_f), w)``: the outputs ``out_f``, ``out_g`` ``[T, C]`` (degrees) of two
+    cleaners ``f``, ``g`` (``[T, C] -> [T, C]``) on ``noisy [T, C]`` mixed with the SURE weight ``w`` of ``f``
+    (``sure_weight``). The noise variance per channel comes from the differences of ``order`` of ``noisy``'s
+    ``observed [T, C]`` samples (``selfcheck.noise_level``); the divergences from ``PROBES`` probes of those samples
+    (each cleaner runs once more per probe, on ``noisy`` plus the probe; missing samples are not probed). A channel
+    counts when it has at least ``MIN_DIFFERENCES`` such differences and finite values; with none, ``w`` is 0.5 (the
+    plain mean). The result is on ``out_f``'s branch of the circle."""
+    ok = np.asarray(observed, dtype=bool) & np.isfinite(noisy) & np.isfinite(out_f) & np.isfinite(out_g)
+    sigma = noise_level(np.where(ok, noisy, 0.0), order, ok)
+    enough = observed_stencils(ok, order).sum(axis=0) >= MIN_DIFFERENCES
+    counted = ok & enough
+    if not counted.any():
+        w = 0.5
+    else:
+        div_f = np.zeros(noisy.shape[1])
+        div_g = np.zeros(noisy.shape[1])
+        for k in range(PROBES):
+            step = np.where(counted, probe(noisy.shape, sigma, PROBE_SEED + k), 0.0)
+            div_f += divergence(out_f, f(noisy + step), step, counted) / PROBES
+            div_g += divergence(out_g, g(noisy + step), step, counted) / PROBES
+        w = sure_weight(noisy, out_f, out_g, div_f, div_g, sigma**2, counted)
+    return out_f + (1.0 - w) * wrap_deg(out_g - out_f), w

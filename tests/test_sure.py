@@ -51,16 +51,19 @@ def test_divergence_of_a_linear_smoother_is_close_to_its_trace():
 
 
 def test_sure_weight_finds_the_better_cleaner_on_white_noise():
-    """Heavy noise: the smoother wins (w near 1 for f = smoother, g = identity); no noise: the identity."""
+    """Heavy noise: the smoother wins (f = smoother, g = identity: w = 1); slow motion without noise: the
+    identity (w near 0, the smoother only blurs)."""
     rng = np.random.default_rng(0)
     x = signal(3000, 4)
     observed = np.ones(x.shape, dtype=bool)
-    for sigma, expect in ((3.0, 1.0), (0.0, 0.0)):
-        y = x + sigma * rng.standard_normal(x.shape)
-        f, g = smooth(2.0), identity
-        mixed, w = sure_mix(y, observed, f(y), g(y), f, g)
-        assert w == pytest.approx(expect, abs=0.1)
-        np.testing.assert_allclose(mixed, g(y) + w * (f(y) - g(y)), atol=1e-9)
+    f, g = smooth(2.0), identity
+    y = x + 3.0 * rng.standard_normal(x.shape)
+    mixed, w = sure_mix(y, observed, f(y), g(y), f, g)
+    assert w == 1.0
+    np.testing.assert_allclose(mixed, f(y), atol=1e-9)
+    slow = 40.0 * np.sin(2 * np.pi * np.arange(3000)[:, None] / 3000.0 + np.arange(4))
+    mixed, w = sure_mix(slow, observed, smooth(8.0)(slow), slow, smooth(8.0), identity)
+    assert w < 0.02
 
 
 def test_sure_weight_is_near_the_oracle_weight_between_two_smoothers():
@@ -102,3 +105,39 @@ def test_the_mix_takes_differences_on_the_circle():
     mixed, w = sure_mix(y, np.ones(y.shape, dtype=bool), out_f, out_g, lambda v: out_f, lambda v: out_g)
     assert 0.0 <= w <= 1.0
     assert np.all(np.abs(((mixed + 180.0) % 360.0) - 180.0) >= 179.5 - 1e-9)
+
+
+def test_a_channel_without_enough_observed_differences_or_with_nan_is_left_out():
+    """A NaN channel or one observed on too few frames does not make the weight NaN; with no channel left the
+    weight is the plain mean (0.5)."""
+    rng = np.random.default_rng(2)
+    x = signal(600, 4)
+    y = x + 2.0 * rng.standard_normal(x.shape)
+    f, g = smooth(2.0), identity
+    observed = np.ones(y.shape, dtype=bool)
+    _, w_all = sure_mix(y, observed, f(y), g(y), f, g)
+    bad = y.copy()
+    bad[:, 3] = np.nan
+    observed[:, 3] = False
+    observed[5:, 2] = False  # 5 frames: 3 second differences, fewer than MIN_DIFFERENCES
+    _, w = sure_mix(bad, observed, f(y), g(y), f, g)
+    assert np.isfinite(w) and w == pytest.approx(w_all, abs=0.05)
+    short = y[:3]
+    _, w = sure_mix(short, np.ones(short.shape, dtype=bool), f(short), g(short), f, g)
+    assert w == 0.5
+
+
+def test_noise_is_estimated_from_observed_differences_only():
+    """Long linear bridges show no noise; counting them would shrink the estimate."""
+    from mocapnet.fill import lerp_fill
+    from mocapnet.selfcheck import noise_level
+
+    rng = np.random.default_rng(3)
+    y = 2.0 * rng.standard_normal((3000, 3))
+    missing = np.zeros(y.shape, dtype=bool)
+    for start in range(0, 3000, 120):
+        missing[start : start + 60] = True  # half the samples, in 60-frame gaps
+    bridged = lerp_fill(y, missing)
+    assert noise_level(bridged).max() < 1.0
+    np.testing.assert_allclose(noise_level(bridged, 2, ~missing), 2.0, rtol=0.1)
+    np.testing.assert_array_equal(noise_level(y, 2, np.ones(y.shape, dtype=bool)), noise_level(y))

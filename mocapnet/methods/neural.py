@@ -360,9 +360,11 @@ def _blend_partner(method: str, blend: str | None, context: MethodContext, optio
 
 def _blend_weight(method: str, weight: float | str | None, blending: bool) -> float | str | None:
     """The ``blend_weight`` option checked: None (the mean), ``"sure"`` or a number in [0, 1]; ValueError
-    naming the method otherwise, or when there is no ``blend`` to weigh."""
+    naming the method otherwise, for ``ebd`` (no blends), or when there is no ``blend`` to weigh."""
     if weight is None:
         return None
+    if method == "ebd":
+        raise ValueError("ebd: blend_weight is for the denoisers (EBF variants, bf, nn), not for gap filling")
     if not blending:
         raise ValueError(f"{method}: blend_weight weighs a blend; give blend=METHOD too")
     if weight == "sure":
@@ -378,10 +380,12 @@ def sure_blend(
     idx: np.ndarray,
     network: Callable[[Motion], np.ndarray],
     partner: Callable[[Motion], np.ndarray],
-) -> np.ndarray:
-    """``network(noisy) -> [T, C]`` with its scored channels ``idx`` mixed with ``partner``'s by the clip's SURE
-    weight (``mocapnet.sure.sure_mix``, the observed samples of ``mask [T, C]``; missing ones bridged linearly
-    for the noise estimate and the probe)."""
+    order: int = 2,
+) -> tuple[np.ndarray, float]:
+    """``(out [T, C], w)``: ``network(noisy) -> [T, C]`` with its scored channels ``idx`` mixed with
+    ``partner``'s by the clip's SURE weight ``w`` of the network (``mocapnet.sure.sure_mix`` on the observed
+    samples of ``mask [T, C]``, True = missing; missing samples are bridged linearly for the probed runs and
+    left out of the estimate; noise from differences of ``order``). The other channels are the network's."""
     seen = lerp_fill(noisy.channels[:, idx], mask[:, idx])
 
     def scored(clean: Callable[[Motion], np.ndarray]) -> Callable[[np.ndarray], np.ndarray]:
@@ -394,8 +398,9 @@ def sure_blend(
 
     out = network(noisy)
     theirs = partner(noisy)[:, idx]
-    out[:, idx], _ = sure_mix(seen, ~mask[:, idx], out[:, idx], theirs, scored(network), scored(partner))
-    return out
+    mixed, w = sure_mix(seen, ~mask[:, idx], out[:, idx], theirs, scored(network), scored(partner), order)
+    out[:, idx] = mixed
+    return out, w
 
 
 def _single(method: str):
@@ -529,10 +534,13 @@ def _single(method: str):
             if partner is None:
                 return network(noisy)
             if weight == "sure":
-                return sure_blend(noisy, mask, idx, network, lambda motion: partner(motion, mask))
+                return sure_blend(noisy, mask, idx, network, lambda m: partner(m, mask), noise_order or 2)[0]
             out = network(noisy)
             ours, theirs = out[:, idx], partner(noisy, mask)[:, idx]
-            out[:, idx] = tta_mean([ours, theirs]) if weight is None else theirs + weight * wrap_deg(ours - theirs)
+            if weight is None:
+                out[:, idx] = tta_mean([ours, theirs])
+            else:
+                out[:, idx] = ours + (1.0 - weight) * wrap_deg(theirs - ours)
             return out
 
         def clean(noisy: Motion, mask: np.ndarray) -> np.ndarray:
