@@ -32,6 +32,11 @@ Mirroring (``mirror=True``): every training clip is joined by its left/right mir
 the skeleton's per-joint frame reflections are fitted once to the training clips, so rigs whose joint frames
 differ joint to joint, as Bandai's do, mirror exactly), doubling the training motion; validation is unchanged.
 
+Limb mixing (``limb_mix=P``): with probability P a training crop takes the channels of one limb (``GAP_SEGMENTS``)
+from a crop of another training clip, at the same length and time-warp rate, with that clip's σ_c, clip
+statistics and spatial-noise residual for those channels; so the networks meet combinations of motion that no
+recording holds (an arm from one content on the body of another), for contents they never saw. Off (0) by default.
+
 Gaps are interpolated before a network sees them (``fill.gap_fill``): by cubic spline for gaps of at most
 ``spline_max_s`` seconds, linearly beyond (0, the default: linearly everywhere). An EBD trained so must be built
 with the same ``spline_max_s``, since it predicts a correction to that interpolation.
@@ -319,10 +324,13 @@ class MotionDataModule(L.LightningDataModule):
         mirror: bool = False,
         num_workers: int = 0,
         holdout_content: str | None = None,
+        limb_mix: float = 0.0,
     ) -> None:
         super().__init__()
         if isinstance(num_workers, bool) or not isinstance(num_workers, int) or num_workers < 0:
             raise ValueError(f"num_workers must be a whole number >= 0, got {num_workers!r}")
+        if isinstance(limb_mix, bool) or not isinstance(limb_mix, (int, float)) or not 0.0 <= limb_mix <= 1.0:
+            raise ValueError(f"limb_mix must be a probability in [0, 1], got {limb_mix!r}")
         self.save_hyperparameters()
         self.spatial: dict[float, list[np.ndarray]] = {}
         self.epoch_counter = 0
@@ -402,15 +410,49 @@ class MotionDataModule(L.LightningDataModule):
             corruption = hp.corruptions[int(rng.integers(len(hp.corruptions)))]
             level = spatial_level(corruption)
             spatial = None if level is None else self.spatial[level][i][np.round(positions).astype(np.int64)]
-            args = (clip.sigma, self.joint_of_channel, clip.fps, corruption, rng, spatial, self.segments)
+            sigma, norm = clip.sigma, self.clip_norms[i]
+            if hp.limb_mix and rng.random() < hp.limb_mix:
+                mixed = self.limb_from_another_clip(clean, sigma, norm, spatial, level, spans, offsets, rng)
+                clean, sigma, norm, spatial = mixed
+            args = (sigma, self.joint_of_channel, clip.fps, corruption, rng, spatial, self.segments)
             noisy, mask = corrupt_window(clean, *args)
             out["filled"].append(gap_fill(noisy, mask, hp.spline_max_s * clip.fps) if mask.any() else noisy)
             out["mask"].append(mask)
             out["clean"].append(clean)
             out["angvel"].append(resample(clip.angvel, positions) * rate)
-            stats.append(crop_statistics(self.clip_norms[i], clean, out["filled"][-1], rate))
+            stats.append(crop_statistics(norm, clean, out["filled"][-1], rate))
         crop_stats = {k: np.stack([s[k] for s in stats]) for k in stats[0]}
         return as_batch(*(np.stack(out[k]) for k in keys), crop_stats)
+
+    def limb_from_another_clip(
+        self,
+        crop: np.ndarray,
+        sigma: np.ndarray,
+        norm: Normaliser,
+        spatial: np.ndarray | None,
+        level: float | None,
+        spans: np.ndarray,
+        offsets: np.ndarray,
+        rng: np.random.Generator,
+    ) -> tuple[np.ndarray, np.ndarray, Normaliser, np.ndarray | None]:
+        """Limb mixing (module docstring): the clean ``crop [L, C_s]`` (degrees) with one random limb's channels
+        taken from a crop of a random training clip (drawn as ``sample_batch`` draws, frames ``start + offsets``),
+        and its ``sigma [C_s]``, clip ``norm`` and ``spatial [L, C_s]`` residual (level ``level``) likewise. New
+        arrays; the inputs are not changed."""
+        j = int(rng.choice(len(self.train_clips), p=spans / spans.sum()))
+        other = self.train_clips[j]
+        positions = np.minimum(int(rng.integers(0, spans[j])) + offsets, len(other.scored) - 1)
+        cols = np.isin(self.joint_of_channel, self.segments[int(rng.integers(len(self.segments)))])
+        crop = crop.copy()
+        crop[:, cols] = resample(other.scored[:, cols].astype(np.float64), positions)
+        theirs = self.clip_norms[j]
+        norm = Normaliser(
+            np.where(cols, theirs.center, norm.center), np.where(cols, theirs.scale, norm.scale), norm.angvel_scale
+        )
+        if spatial is not None:
+            spatial = spatial.copy()
+            spatial[:, cols] = self.spatial[level][j][np.round(positions).astype(np.int64)][:, cols]
+        return crop, np.where(cols, other.sigma, sigma), norm, spatial
 
     def train_dataloader(self) -> DataLoader:
         workers = self.hparams.get("num_workers", 0)

@@ -129,3 +129,57 @@ def test_training_batches_are_reproducible_per_epoch_and_resume(workers: int):
         assert not any(np.array_equal(a, b) for a, b in zip(first, _epoch(_crop_module(0))))
     with pytest.raises(ValueError, match="num_workers"):
         MotionDataModule(corpus="sample", num_workers=-1)
+
+
+def test_limb_mixing_takes_one_limb_from_another_clip_crop():
+    """``limb_from_another_clip``: exactly one limb's channels change, each to a run of frames of a training clip
+    (the same run for the whole limb), with that clip's sigma and statistics for them; the inputs stay as they were."""
+    dm = MotionDataModule(corpus="sample", corruptions=("spatial-1cm",), mirror=True, batch_size=2, limb_mix=1.0)
+    dm.setup()
+    length = 40
+    spans = np.maximum(dm.lengths - length + 1, 0).astype(np.float64)
+    crop = np.full((length, dm.n_channels), 1000.0)
+    sigma = np.full(dm.n_channels, -1.0)
+    norm = dm.clip_norms[0]
+    spatial = np.zeros((length, dm.n_channels))
+    rng = np.random.default_rng(5)
+    mixed, mixed_sigma, mixed_norm, mixed_spatial = dm.limb_from_another_clip(
+        crop, sigma, norm, spatial, 1.0, spans, np.arange(length, dtype=np.float64), rng
+    )
+    assert (crop == 1000.0).all() and (sigma == -1.0).all() and not spatial.any()  # inputs untouched
+    changed = (mixed != 1000.0).any(axis=0)
+    limbs = [np.isin(dm.joint_of_channel, limb) for limb in dm.segments]
+    assert any(np.array_equal(changed, cols) for cols in limbs)
+    found = False
+    for j, clip in enumerate(dm.train_clips):
+        for start in range(len(clip.scored) - length + 1):
+            if np.allclose(mixed[:, changed], clip.scored[start : start + length][:, changed], atol=1e-4):
+                np.testing.assert_array_equal(mixed_sigma[changed], clip.sigma[changed])
+                np.testing.assert_array_equal(mixed_norm.center[changed], dm.clip_norms[j].center[changed])
+                np.testing.assert_array_equal(mixed_norm.scale[~changed], norm.scale[~changed])
+                found = True
+                break
+        if found:
+            break
+    assert found
+    assert (
+        (mixed_sigma[~changed] == -1.0).all()
+        and mixed_spatial[:, changed].any()
+        and not mixed_spatial[:, ~changed].any()
+    )
+
+
+def test_limb_mix_is_off_by_default_and_checked():
+    plain = MotionDataModule(corpus="sample", batch_size=2, seed=3)
+    plain.setup()
+    mixing = MotionDataModule(corpus="sample", batch_size=2, seed=3, limb_mix=1.0, mirror=True)
+    mixing.setup()
+    batch = mixing.sample_batch(np.random.default_rng(0))
+    assert np.isfinite(batch["filled"].numpy()).all() and np.isfinite(batch["scale"].numpy()).all()
+    same = MotionDataModule(corpus="sample", batch_size=2, seed=3, limb_mix=0.0)
+    same.setup()
+    a, b = plain.sample_batch(np.random.default_rng(1)), same.sample_batch(np.random.default_rng(1))
+    np.testing.assert_array_equal(a["filled"].numpy(), b["filled"].numpy())
+    for bad in (-0.1, 1.5, True, "half"):
+        with pytest.raises(ValueError, match="limb_mix must be a probability"):
+            MotionDataModule(corpus="sample", limb_mix=bad)
