@@ -33,9 +33,11 @@ the skeleton's per-joint frame reflections are fitted once to the training clips
 differ joint to joint, as Bandai's do, mirror exactly), doubling the training motion; validation is unchanged.
 
 Limb mixing (``limb_mix=P``): with probability P a training crop takes the channels of one limb (``GAP_SEGMENTS``)
-from a crop of another training clip, at the same length and time-warp rate, with that clip's σ_c, clip
-statistics and spatial-noise residual for those channels; so the networks meet combinations of motion that no
-recording holds (an arm from one content on the body of another), for contents they never saw. Off (0) by default.
+from a crop of another training clip (the same clip only in a one-clip corpus), at the same length and time-warp
+rate, with that clip's σ_c, clip statistics and spatial-noise residual for those channels; so the networks meet
+combinations of the training contents that no recording holds (an arm from one content on the body of another),
+meant to make a content they never saw less new. The spliced spatial residual is approximate: the joints next to
+the limb were solved against the first clip's limb noise. Off (0) by default.
 
 Gaps are interpolated before a network sees them (``fill.gap_fill``): by cubic spline for gaps of at most
 ``spline_max_s`` seconds, linearly beyond (0, the default: linearly everywhere). An EBD trained so must be built
@@ -48,7 +50,7 @@ carries those of its whole noisy input (``base.clip_statistics``), as inference 
 carries those its whole clip would have with the crop's noise (``crop_statistics``): the clean clip's circular
 centre shifted by the crop's mean noise, the clean clip's variance plus the crop's noise variance, the clean
 clip's angular velocity RMS times the time-warp rate; so a crop of 31 frames is normalised as the whole clip
-would be.
+would be (with limb mixing, the limb's channels as their own clip would be).
 """
 
 from __future__ import annotations
@@ -352,6 +354,8 @@ class MotionDataModule(L.LightningDataModule):
             mirror = fit_mirror(train)
             train = train + [mirror_motion(m, mirror) for m in train]
         skeleton = train[0].skeleton
+        if hp.get("limb_mix", 0.0) and not limb_joints(skeleton):
+            raise ValueError(f"limb_mix needs limbs ({', '.join(GAP_SEGMENTS)}); {skeleton.describe()} has none")
         self.skeleton_hash = topology_hash(skeleton)
         self.fps = float(train[0].fps)
         self.n_channels = int(skeleton.scored_mask.sum())
@@ -412,7 +416,7 @@ class MotionDataModule(L.LightningDataModule):
             spatial = None if level is None else self.spatial[level][i][np.round(positions).astype(np.int64)]
             sigma, norm = clip.sigma, self.clip_norms[i]
             if hp.limb_mix and rng.random() < hp.limb_mix:
-                mixed = self.limb_from_another_clip(clean, sigma, norm, spatial, level, spans, offsets, rng)
+                mixed = self.limb_from_another_clip(i, clean, sigma, norm, spatial, level, spans, offsets, rng)
                 clean, sigma, norm, spatial = mixed
             args = (sigma, self.joint_of_channel, clip.fps, corruption, rng, spatial, self.segments)
             noisy, mask = corrupt_window(clean, *args)
@@ -426,6 +430,7 @@ class MotionDataModule(L.LightningDataModule):
 
     def limb_from_another_clip(
         self,
+        own: int,
         crop: np.ndarray,
         sigma: np.ndarray,
         norm: Normaliser,
@@ -435,11 +440,15 @@ class MotionDataModule(L.LightningDataModule):
         offsets: np.ndarray,
         rng: np.random.Generator,
     ) -> tuple[np.ndarray, np.ndarray, Normaliser, np.ndarray | None]:
-        """Limb mixing (module docstring): the clean ``crop [L, C_s]`` (degrees) with one random limb's channels
-        taken from a crop of a random training clip (drawn as ``sample_batch`` draws, frames ``start + offsets``),
-        and its ``sigma [C_s]``, clip ``norm`` and ``spatial [L, C_s]`` residual (level ``level``) likewise. New
-        arrays; the inputs are not changed."""
-        j = int(rng.choice(len(self.train_clips), p=spans / spans.sum()))
+        """Limb mixing (module docstring): the clean ``crop [L, C_s]`` (degrees) of training clip ``own`` with one
+        random limb's channels taken from a crop of another training clip (drawn as ``sample_batch`` draws, by
+        ``spans``, at frames ``start + offsets``; ``own`` itself only when no other clip is long enough), and its
+        ``sigma [C_s]``, clip ``norm`` and ``spatial [L, C_s]`` residual (level ``level``) likewise. New arrays; the
+        inputs are not changed."""
+        weights = spans.copy()
+        if weights.sum() > weights[own]:
+            weights[own] = 0.0
+        j = int(rng.choice(len(self.train_clips), p=weights / weights.sum()))
         other = self.train_clips[j]
         positions = np.minimum(int(rng.integers(0, spans[j])) + offsets, len(other.scored) - 1)
         cols = np.isin(self.joint_of_channel, self.segments[int(rng.integers(len(self.segments)))])
@@ -451,7 +460,9 @@ class MotionDataModule(L.LightningDataModule):
         )
         if spatial is not None:
             spatial = spatial.copy()
-            spatial[:, cols] = self.spatial[level][j][np.round(positions).astype(np.int64)][:, cols]
+            spatial[:, cols] = self.spatial[level][j][
+                np.ix_(np.round(positions).astype(np.int64), np.flatnonzero(cols))
+            ]
         return crop, np.where(cols, other.sigma, sigma), norm, spatial
 
     def train_dataloader(self) -> DataLoader:

@@ -131,55 +131,82 @@ def test_training_batches_are_reproducible_per_epoch_and_resume(workers: int):
         MotionDataModule(corpus="sample", num_workers=-1)
 
 
-def test_limb_mixing_takes_one_limb_from_another_clip_crop():
-    """``limb_from_another_clip``: exactly one limb's channels change, each to a run of frames of a training clip
-    (the same run for the whole limb), with that clip's sigma and statistics for them; the inputs stay as they were."""
-    dm = MotionDataModule(corpus="sample", corruptions=("spatial-1cm",), mirror=True, batch_size=2, limb_mix=1.0)
+def _limb_module(**kw) -> MotionDataModule:
+    dm = MotionDataModule(corpus="sample", corruptions=("spatial-1cm",), mirror=True, batch_size=2, limb_mix=1.0, **kw)
     dm.setup()
-    length = 40
-    spans = np.maximum(dm.lengths - length + 1, 0).astype(np.float64)
+    return dm
+
+
+def test_limb_mixing_takes_one_limb_from_another_clip_crop():
+    """``limb_from_another_clip``: exactly one limb's channels change, to the other clip's channels at the given
+    (fractional, time-warped) frames, with that clip's sigma, centre and scale and spatial residual rows; the rest
+    and the root's angular-velocity scale stay the crop's own; the inputs are not changed."""
+    from mocapnet.nn.data import resample
+
+    dm = _limb_module()
+    length, rate = 40, 1.13
+    offsets = np.arange(length) * rate
+    need = int(np.ceil((length - 1) * rate)) + 1
+    spans = np.maximum(dm.lengths - need + 1, 0).astype(np.float64)
     crop = np.full((length, dm.n_channels), 1000.0)
     sigma = np.full(dm.n_channels, -1.0)
     norm = dm.clip_norms[0]
     spatial = np.zeros((length, dm.n_channels))
     rng = np.random.default_rng(5)
     mixed, mixed_sigma, mixed_norm, mixed_spatial = dm.limb_from_another_clip(
-        crop, sigma, norm, spatial, 1.0, spans, np.arange(length, dtype=np.float64), rng
+        0, crop, sigma, norm, spatial, 1.0, spans, offsets, np.random.default_rng(5)
     )
     assert (crop == 1000.0).all() and (sigma == -1.0).all() and not spatial.any()  # inputs untouched
     changed = (mixed != 1000.0).any(axis=0)
-    limbs = [np.isin(dm.joint_of_channel, limb) for limb in dm.segments]
-    assert any(np.array_equal(changed, cols) for cols in limbs)
-    found = False
-    for j, clip in enumerate(dm.train_clips):
-        for start in range(len(clip.scored) - length + 1):
-            if np.allclose(mixed[:, changed], clip.scored[start : start + length][:, changed], atol=1e-4):
-                np.testing.assert_array_equal(mixed_sigma[changed], clip.sigma[changed])
-                np.testing.assert_array_equal(mixed_norm.center[changed], dm.clip_norms[j].center[changed])
-                np.testing.assert_array_equal(mixed_norm.scale[~changed], norm.scale[~changed])
-                found = True
-                break
-        if found:
-            break
-    assert found
-    assert (
-        (mixed_sigma[~changed] == -1.0).all()
-        and mixed_spatial[:, changed].any()
-        and not mixed_spatial[:, ~changed].any()
-    )
+    assert any(np.array_equal(changed, np.isin(dm.joint_of_channel, limb)) for limb in dm.segments)
+    # the same draws as the method: the other clip (never clip 0 itself: clip 1, its mirror, has room), its start
+    weights = spans.copy()
+    weights[0] = 0.0
+    j = int(rng.choice(len(dm.train_clips), p=weights / weights.sum()))
+    assert j == 1
+    positions = np.minimum(int(rng.integers(0, spans[j])) + offsets, len(dm.train_clips[j].scored) - 1)
+    expected = resample(dm.train_clips[j].scored.astype(np.float64), positions)
+    np.testing.assert_allclose(mixed[:, changed], expected[:, changed], atol=1e-9)
+    np.testing.assert_array_equal(mixed_sigma[changed], dm.train_clips[j].sigma[changed])
+    assert (mixed_sigma[~changed] == -1.0).all()
+    for field in ("center", "scale"):
+        np.testing.assert_array_equal(getattr(mixed_norm, field)[changed], getattr(dm.clip_norms[j], field)[changed])
+        np.testing.assert_array_equal(getattr(mixed_norm, field)[~changed], getattr(norm, field)[~changed])
+    np.testing.assert_array_equal(mixed_norm.angvel_scale, norm.angvel_scale)
+    rows = np.round(positions).astype(np.int64)
+    np.testing.assert_array_equal(mixed_spatial[:, changed], dm.spatial[1.0][j][rows][:, changed])
+    assert not mixed_spatial[:, ~changed].any()
 
 
-def test_limb_mix_is_off_by_default_and_checked():
-    plain = MotionDataModule(corpus="sample", batch_size=2, seed=3)
-    plain.setup()
-    mixing = MotionDataModule(corpus="sample", batch_size=2, seed=3, limb_mix=1.0, mirror=True)
-    mixing.setup()
-    batch = mixing.sample_batch(np.random.default_rng(0))
-    assert np.isfinite(batch["filled"].numpy()).all() and np.isfinite(batch["scale"].numpy()).all()
-    same = MotionDataModule(corpus="sample", batch_size=2, seed=3, limb_mix=0.0)
-    same.setup()
-    a, b = plain.sample_batch(np.random.default_rng(1)), same.sample_batch(np.random.default_rng(1))
-    np.testing.assert_array_equal(a["filled"].numpy(), b["filled"].numpy())
+def test_sample_batch_feeds_the_mixed_crop_and_its_statistics(monkeypatch):
+    """With ``limb_mix=1`` every crop of a batch is the mixed one and carries the mixed clip statistics (its scale:
+    the mixed clip's, widened by the crop's noise, ``crop_statistics``)."""
+    from mocapnet.nn.data import crop_statistics
+
+    dm = _limb_module(time_warp=(0.8, 1.25))
+    made = []
+    original = dm.limb_from_another_clip
+
+    def recording(*args):
+        out = original(*args)
+        made.append(out)
+        return out
+
+    monkeypatch.setattr(dm, "limb_from_another_clip", recording)
+    batch = dm.sample_batch(np.random.default_rng(2))
+    assert len(made) == 2
+    for b, (crop, _, norm, _) in enumerate(made):
+        np.testing.assert_allclose(batch["clean"][b].numpy(), crop, atol=1e-3)
+        rate = float(batch["angvel_scale"][b, 0, 0] / dm.clip_norms[0].angvel_scale[0])  # both crops: clip 0 or 1
+        stats = crop_statistics(norm, crop, batch["filled"][b].numpy().astype(np.float64), rate)
+        np.testing.assert_allclose(batch["scale"][b].numpy(), stats["scale"], rtol=1e-4)
+    off = MotionDataModule(corpus="sample", mirror=True, batch_size=2, limb_mix=0.0)
+    off.setup()
+    monkeypatch.setattr(off, "limb_from_another_clip", lambda *a: pytest.fail("limb_mix=0 must not mix"))
+    assert np.isfinite(off.sample_batch(np.random.default_rng(2))["filled"].numpy()).all()
+
+
+def test_limb_mix_is_checked():
     for bad in (-0.1, 1.5, True, "half"):
         with pytest.raises(ValueError, match="limb_mix must be a probability"):
             MotionDataModule(corpus="sample", limb_mix=bad)
