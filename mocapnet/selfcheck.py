@@ -26,19 +26,21 @@ def observed_stencils(observed: np.ndarray, order: int = 2) -> np.ndarray:
 
 
 def noise_level(x: np.ndarray, order: int = 2, observed: np.ndarray | None = None) -> np.ndarray:
-    """Standard deviation ``[C]`` (degrees) of white noise that ``x [T, C]`` (degrees) shows, from its differences
-    of ``order`` (2, 3 or 4; ``C(2n, n)·σ²`` for white noise, 6σ² at order 2): ``1.4826·MAD / √C(2n, n)``, robust
-    to spikes; the motion's own curvature can only raise it, less at a higher order (fast bandai2 ``run`` clips,
-    clean: 0.958° at order 2, 0.429° at order 4; ``scripts/check_noise_estimate.py``). ``observed [T, C]`` (bool):
-    only differences of observed samples count (``observed_stencils``; a linear bridge over a gap shows no noise
-    and would pull the estimate down). Zeros for fewer than ``order + 1`` frames, or a channel with no such
-    difference."""
+    """Standard deviation ``[C]`` (degrees) of white noise that ``x [T, C]`` (degrees) shows, from its differences of
+    ``order`` (2, 3 or 4; ``C(2n, n)·σ²`` for white noise, 6σ² at order 2): ``1.4826·MAD / √C(2n, n)``, robust to
+    spikes; the motion's own curvature can only raise it, less at a higher order (fast bandai2 ``run`` clips, clean:
+    0.958° at order 2, 0.429° at order 4; ``scripts/check_noise_estimate.py``). ``observed [T, C]`` (bool): only
+    differences of observed samples count (``observed_stencils``; a linear bridge over a gap shows no noise and
+    would pull the estimate down), whatever the unobserved samples hold (NaN too). Zeros for fewer than
+    ``order + 1`` frames, or a channel with no such difference."""
     if order not in NOISE_ORDERS:
         raise ValueError(f"noise order must be one of {NOISE_ORDERS}, got {order!r}")
     out = np.zeros(x.shape[1])
     if len(x) <= order:
         return out
     valid = None if observed is None else observed_stencils(observed, order)
+    if observed is not None:  # unobserved values (NaN, say) must not reach unwrap, which carries them forward
+        x = np.where(observed, x, 0.0)
     for c in range(0, x.shape[1], COLUMN_BLOCK):
         cols = slice(c, c + COLUMN_BLOCK)
         d = np.diff(np.unwrap(x[:, cols], period=360.0, axis=0), n=order, axis=0)

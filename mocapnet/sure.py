@@ -89,15 +89,16 @@ def sure_mix(
     g: Callable[[np.ndarray], np.ndarray],
     order: int = 2,
 ) -> tuple[np.ndarray, float]:
-    """``(out_f + (1 − w) (out_g − out_f), w)``: the outputs ``out_f``, ``out_g`` ``[T, C]`` (degrees) of two
-    cleaners ``f``, ``g`` (``[T, C] -> [T, C]``) on ``noisy [T, C]`` mixed with the SURE weight ``w`` of ``f``
+    """``(out_f + (1 − w) (out_g − out_f), w)``: the outputs ``out_f``, ``out_g`` ``[T, C]`` (degrees) of two cleaners
+    ``f``, ``g`` (``[T, C] -> [T, C]``) on ``noisy [T, C]`` mixed with the SURE weight ``w`` of ``f``
     (``sure_weight``). The noise variance per channel comes from the differences of ``order`` of ``noisy``'s
     ``observed [T, C]`` samples (``selfcheck.noise_level``); the divergences from ``PROBES`` probes of those samples
-    (each cleaner runs once more per probe, on ``noisy`` plus the probe; missing samples are not probed). A channel
-    counts when it has at least ``MIN_DIFFERENCES`` such differences and finite values; with none, ``w`` is 0.5 (the
-    plain mean). The result is on ``out_f``'s branch of the circle."""
+    (each cleaner runs once more per probe, on ``noisy`` plus the probe; missing samples are not probed). Samples
+    where the input or an output is not finite are left out; a channel counts when it keeps at least
+    ``MIN_DIFFERENCES`` differences of ``order`` on such samples; with none, ``w`` is 0.5 (the plain mean). The
+    result is on ``out_f``'s branch of the circle."""
     ok = np.asarray(observed, dtype=bool) & np.isfinite(noisy) & np.isfinite(out_f) & np.isfinite(out_g)
-    sigma = noise_level(np.where(ok, noisy, 0.0), order, ok)
+    sigma = noise_level(noisy, order, ok)
     enough = observed_stencils(ok, order).sum(axis=0) >= MIN_DIFFERENCES
     counted = ok & enough
     if not counted.any():

@@ -141,3 +141,14 @@ def test_noise_is_estimated_from_observed_differences_only():
     assert noise_level(bridged).max() < 1.0
     np.testing.assert_allclose(noise_level(bridged, 2, ~missing), 2.0, rtol=0.1)
     np.testing.assert_array_equal(noise_level(y, 2, np.ones(y.shape, dtype=bool)), noise_level(y))
+
+
+def test_noise_estimate_ignores_nan_at_unobserved_samples():
+    from mocapnet.selfcheck import noise_level
+
+    y = 2.0 * np.random.default_rng(4).standard_normal((2000, 2))
+    observed = np.ones(y.shape, dtype=bool)
+    observed[0, 0] = observed[900:950, 1] = False
+    holed = np.where(observed, y, np.nan)
+    np.testing.assert_allclose(noise_level(holed, 2, observed), noise_level(y, 2, observed))
+    assert (noise_level(holed, 2, observed) > 1.5).all()

@@ -33,7 +33,8 @@ the skeleton's per-joint frame reflections are fitted once to the training clips
 differ joint to joint, as Bandai's do, mirror exactly), doubling the training motion; validation is unchanged.
 
 Limb mixing (``limb_mix=P``): with probability P a training crop takes the channels of one limb (``GAP_SEGMENTS``)
-from a crop of another training clip (the same clip only in a one-clip corpus), at the same length and time-warp
+from a crop of another training clip (its own mirror image can be; itself only when no other clip is long
+enough), at the same length and time-warp
 rate, with that clip's σ_c, clip statistics and spatial-noise residual for those channels; so the networks meet
 combinations of the training contents that no recording holds (an arm from one content on the body of another),
 meant to make a content they never saw less new. The spliced spatial residual is approximate: the joints next to
