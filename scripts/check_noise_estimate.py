@@ -22,12 +22,12 @@ import numpy as np
 from mocapnet.corrupt import corrupt_motion, seed_for
 from mocapnet.evaluate.neural_bench import split_clips
 from mocapnet.evaluate.results import provenance, provenance_header, write_results
-from mocapnet.selfcheck import noise_level
+from mocapnet.selfcheck import NOISE_ORDERS, noise_level
 from mocapnet.threads import pin_threads
 
 ROOT = Path(__file__).resolve().parents[1]
 SETS = (("content:run", 60), ("style:elderly", 30), ("val", 30))
-ORDERS = (2, 3, 4)
+ORDERS = NOISE_ORDERS
 
 
 def main() -> None:

@@ -355,7 +355,7 @@ class MotionDataModule(L.LightningDataModule):
             mirror = fit_mirror(train)
             train = train + [mirror_motion(m, mirror) for m in train]
         skeleton = train[0].skeleton
-        if hp.get("limb_mix", 0.0) and not limb_joints(skeleton):
+        if hp.limb_mix and not limb_joints(skeleton):
             raise ValueError(f"limb_mix needs limbs ({', '.join(GAP_SEGMENTS)}); {skeleton.describe()} has none")
         self.skeleton_hash = topology_hash(skeleton)
         self.fps = float(train[0].fps)
@@ -409,8 +409,7 @@ class MotionDataModule(L.LightningDataModule):
         stats: list[dict[str, np.ndarray]] = []
         for i in clips:
             clip = self.train_clips[i]
-            start = int(rng.integers(0, spans[i]))
-            positions = np.minimum(start + offsets, len(clip.scored) - 1)
+            positions = self.crop_positions(i, spans, offsets, rng)
             clean = resample(clip.scored.astype(np.float64), positions)
             corruption = hp.corruptions[int(rng.integers(len(hp.corruptions)))]
             level = spatial_level(corruption)
@@ -428,6 +427,12 @@ class MotionDataModule(L.LightningDataModule):
             stats.append(crop_statistics(norm, clean, out["filled"][-1], rate))
         crop_stats = {k: np.stack([s[k] for s in stats]) for k in stats[0]}
         return as_batch(*(np.stack(out[k]) for k in keys), crop_stats)
+
+    def crop_positions(self, clip: int, spans: np.ndarray, offsets: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """Fractional frames ``[L]`` of a crop of training clip ``clip``: a random start below ``spans[clip]``
+        plus ``offsets`` (the time-warped frame steps), held inside the clip."""
+        start = int(rng.integers(0, spans[clip]))
+        return np.minimum(start + offsets, len(self.train_clips[clip].scored) - 1)
 
     def limb_from_another_clip(
         self,
@@ -451,7 +456,7 @@ class MotionDataModule(L.LightningDataModule):
             weights[own] = 0.0
         j = int(rng.choice(len(self.train_clips), p=weights / weights.sum()))
         other = self.train_clips[j]
-        positions = np.minimum(int(rng.integers(0, spans[j])) + offsets, len(other.scored) - 1)
+        positions = self.crop_positions(j, spans, offsets, rng)
         cols = np.isin(self.joint_of_channel, self.segments[int(rng.integers(len(self.segments)))])
         crop = crop.copy()
         crop[:, cols] = resample(other.scored[:, cols].astype(np.float64), positions)
