@@ -39,6 +39,7 @@ import dataclasses
 import json
 from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import TypeVar
 
 import numpy as np
 
@@ -93,6 +94,24 @@ _BLEND_OPTIONS = (
 _INDEX = Path(__file__).resolve().parents[1] / "checkpoints" / "index.json"
 
 
+T = TypeVar("T")
+
+
+def per_skeleton(load: Callable[[Skeleton], T]) -> Callable[[Skeleton], T]:
+    """``load`` called once per skeleton topology (``Skeleton.topology``) and its result reused for every later
+    skeleton of that topology. What depends on more than the topology (the frame rate) is the caller's to check
+    on every call."""
+    cache: dict[tuple, T] = {}
+
+    def cached(skeleton: Skeleton) -> T:
+        key = skeleton.topology()
+        if key not in cache:
+            cache[key] = load(skeleton)
+        return cache[key]
+
+    return cached
+
+
 def _resolver(method: str, path: str | None) -> Callable[[Motion], object]:
     """A function giving the loaded model for a motion: from ``path`` (loaded now, so a bad path fails at
     build time) or the shipped checkpoint of ``method`` for the motion's skeleton (loaded once per skeleton)."""
@@ -112,15 +131,17 @@ def _resolver(method: str, path: str | None) -> Callable[[Motion], object]:
             return model
 
         return given
-    cache: dict[tuple, object] = {}
+
+    def load_shipped(skeleton: Skeleton) -> tuple[Path, object]:
+        ckpt = shipped_checkpoint(method, skeleton)
+        return ckpt, load_model(ckpt)
+
+    loaded = per_skeleton(load_shipped)
 
     def shipped(motion: Motion) -> object:
-        key = motion.skeleton.topology()
-        if key not in cache:
-            ckpt = shipped_checkpoint(method, motion.skeleton)
-            cache[key] = load_model(ckpt)
-            check_skeleton(cache[key], motion.skeleton, f"shipped checkpoint {ckpt.name}", motion.fps)
-        return cache[key]
+        ckpt, model = loaded(motion.skeleton)
+        check_skeleton(model, motion.skeleton, f"shipped checkpoint {ckpt.name}", motion.fps)
+        return model
 
     return shipped
 
@@ -156,24 +177,24 @@ def _short_resolver(
     from mocapnet.nn.checkpoints import shipped_short
     from mocapnet.nn.infer import check_skeleton, load_model
 
-    cache: dict[tuple, tuple[object, float] | None] = {}
+    def load_shipped(skeleton: Skeleton) -> tuple[Path, object, float] | None:
+        found = shipped_short(skeleton)
+        return None if found is None else (found[0], load_model(found[0]), found[1])
+
+    loaded = per_skeleton(load_shipped)
 
     def shipped(motion: Motion) -> tuple[object, float] | None:
-        key = motion.skeleton.topology()
-        if key not in cache:
-            found = shipped_short(motion.skeleton)
-            if found is None and short_max_s is not None:
-                raise ValueError(
-                    f"{label}: short_max_s given, but the ebd shipped for this skeleton ({motion.skeleton.describe()}) "
-                    "has no short-gap network: name one with short=PATH"
-                )
-            if found is None:
-                cache[key] = None
-            else:
-                model = load_model(found[0])
-                check_skeleton(model, motion.skeleton, f"shipped checkpoint {found[0].name}", motion.fps)
-                cache[key] = (model, found[1] if short_max_s is None else float(short_max_s))
-        return cache[key]
+        found = loaded(motion.skeleton)
+        if found is None and short_max_s is not None:
+            raise ValueError(
+                f"{label}: short_max_s given, but the ebd shipped for this skeleton ({motion.skeleton.describe()}) "
+                "has no short-gap network: name one with short=PATH"
+            )
+        if found is None:
+            return None
+        ckpt, model, max_s = found
+        check_skeleton(model, motion.skeleton, f"shipped checkpoint {ckpt.name}", motion.fps)
+        return model, max_s if short_max_s is None else float(short_max_s)
 
     return shipped
 

@@ -132,3 +132,20 @@ def test_ebd_never_changes_observed_samples(clip, sample, tiny, tmp_path):
             out = build_method(text).clean(longer.with_channels(noisy), mask)
             np.testing.assert_array_equal(out[~mask], noisy[~mask])
             assert np.isfinite(out).all()
+
+
+@pytest.mark.parametrize("method", ["ebf", "ebd"])
+def test_a_shipped_network_checks_the_frame_rate_of_every_clip(clip, method):
+    """The shipped network is loaded once per skeleton, but each clip's frame rate is checked: a 30 fps clip of
+    the rig after a 120 fps one still hears that the network counts frames at 120 fps."""
+    import warnings
+
+    clean = build_method(method).clean
+    noisy, mask = corrupt_motion(clip, "gaps", np.random.default_rng(2))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        clean(clip.with_channels(noisy), mask)
+    slow = replace(clip.with_channels(noisy), fps=30.0)
+    for _ in range(2):
+        with pytest.warns(UserWarning, match="was trained at 120 fps; this motion is at 30 fps"):
+            clean(slow, mask)
