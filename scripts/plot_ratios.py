@@ -1,10 +1,10 @@
 """Draw the ratio column of ``bench_neural`` results files as bars per corruption, one panel per corpus.
 
-    python scripts/plot_ratios.py benchmarks/results/neural_r2_bandai2_s24.json \
+    python scripts/plot_ratios.py benchmarks/results/neural_r2lm_bandai2_s30.json \
         benchmarks/results/gaussian_cv_joined_bandai2_s24.json benchmarks/results/neural_noise_bandai2.json \
-        benchmarks/results/neural_r2_bandai1_s24.json benchmarks/results/gaussian_cv_joined_bandai1_s24.json \
+        benchmarks/results/neural_r2lm_bandai1_s30.json benchmarks/results/gaussian_cv_joined_bandai1_s24.json \
         benchmarks/results/neural_noise_bandai1.json --method ebf --method gaussian-cv --method ebf-paper \
-        --title "Shipped ebf (R2) vs gaussian-cv and a short ebf-paper run, ratio to the best of 3 Gaussians" \
+        --title "Shipped ebf (R2LM) vs gaussian-cv and a short ebf-paper run, ratio to the best of 3 Gaussians" \
         --out benchmarks/results/ebf_transfer.png
 
 A method scored in several files (same corpus and corruption) is drawn from the first file that has it.
