@@ -27,7 +27,6 @@ from mocapnet.threads import pin_threads
 
 ROOT = Path(__file__).resolve().parents[1]
 SETS = (("content:run", 60), ("style:elderly", 30), ("val", 30))
-ORDERS = NOISE_ORDERS
 
 
 def main() -> None:
@@ -39,18 +38,18 @@ def main() -> None:
     rows = []
     for split, n_clips in SETS:
         _, clips, _ = split_clips("bandai2", split, n_clips)
-        clean = {k: [] for k in ORDERS}
-        ratio = {k: [] for k in ORDERS}
+        clean = {k: [] for k in NOISE_ORDERS}
+        ratio = {k: [] for k in NOISE_ORDERS}
         for motion in clips:
             scored = motion.skeleton.scored_mask
             rng = np.random.default_rng(seed_for("bandai2", motion.name, 0, "angular-0.1"))
             noisy = corrupt_motion(motion, "angular-0.1", rng)[0][:, scored]
             truth = motion.channels[:, scored]
             added = np.maximum((noisy - truth).std(axis=0), 1e-9)
-            for k in ORDERS:
+            for k in NOISE_ORDERS:
                 clean[k].append(float(np.sqrt(np.mean(noise_level(truth, k) ** 2))))
                 ratio[k].extend((noise_level(noisy, k) / added).tolist())
-        for k in ORDERS:
+        for k in NOISE_ORDERS:
             rows.append(
                 {
                     "set": split,
