@@ -38,7 +38,9 @@ enough), at the same length and time-warp
 rate, with that clip's σ_c, clip statistics and spatial-noise residual for those channels; so the networks meet
 combinations of the training contents that no recording holds (an arm from one content on the body of another),
 meant to make a content they never saw less new. The spliced spatial residual is approximate: the joints next to
-the limb were solved against the first clip's limb noise. Off (0) by default.
+the limb were solved against the first clip's limb noise. Off (0) by default. ``limb_mix_corruptions`` (names
+from ``corruptions``) restricts it to the crops drawn with those corruptions, e.g. the whole-limb gaps only
+(None, the default: every crop).
 
 Gaps are interpolated before a network sees them (``fill.gap_fill``): by cubic spline for gaps of at most
 ``spline_max_s`` seconds, linearly beyond (0, the default: linearly everywhere). An EBD trained so must be built
@@ -328,12 +330,20 @@ class MotionDataModule(L.LightningDataModule):
         num_workers: int = 0,
         holdout_content: str | None = None,
         limb_mix: float = 0.0,
+        limb_mix_corruptions: tuple[str, ...] | None = None,
     ) -> None:
         super().__init__()
         if isinstance(num_workers, bool) or not isinstance(num_workers, int) or num_workers < 0:
             raise ValueError(f"num_workers must be a whole number >= 0, got {num_workers!r}")
         if isinstance(limb_mix, bool) or not isinstance(limb_mix, (int, float)) or not 0.0 <= limb_mix <= 1.0:
             raise ValueError(f"limb_mix must be a probability in [0, 1], got {limb_mix!r}")
+        if limb_mix_corruptions is not None:
+            unknown = sorted(set(limb_mix_corruptions) - set(corruptions))
+            if unknown or not limb_mix_corruptions:
+                raise ValueError(
+                    f"limb_mix_corruptions must name training corruptions ({', '.join(corruptions)}); "
+                    f"got {list(limb_mix_corruptions)!r}"
+                )
         self.save_hyperparameters()
         self.spatial: dict[float, list[np.ndarray]] = {}
         self.epoch_counter = 0
@@ -415,7 +425,8 @@ class MotionDataModule(L.LightningDataModule):
             level = spatial_level(corruption)
             spatial = None if level is None else self.spatial[level][i][np.round(positions).astype(np.int64)]
             sigma, norm = clip.sigma, self.clip_norms[i]
-            if hp.limb_mix and rng.random() < hp.limb_mix:
+            mixable = hp.limb_mix_corruptions is None or corruption in hp.limb_mix_corruptions
+            if hp.limb_mix and mixable and rng.random() < hp.limb_mix:
                 mixed = self.limb_from_another_clip(i, clean, sigma, norm, spatial, level, spans, offsets, rng)
                 clean, sigma, norm, spatial = mixed
             args = (sigma, self.joint_of_channel, clip.fps, corruption, rng, spatial, self.segments)

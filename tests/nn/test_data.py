@@ -132,7 +132,8 @@ def test_training_batches_are_reproducible_per_epoch_and_resume(workers: int):
 
 
 def _limb_module(**kw) -> MotionDataModule:
-    dm = MotionDataModule(corpus="sample", corruptions=("spatial-1cm",), mirror=True, batch_size=2, limb_mix=1.0, **kw)
+    kw = {"corruptions": ("spatial-1cm",), **kw}
+    dm = MotionDataModule(corpus="sample", mirror=True, batch_size=2, limb_mix=1.0, **kw)
     dm.setup()
     return dm
 
@@ -210,3 +211,33 @@ def test_limb_mix_is_checked():
     for bad in (-0.1, 1.5, True, "half"):
         with pytest.raises(ValueError, match="limb_mix must be a probability"):
             MotionDataModule(corpus="sample", limb_mix=bad)
+    for bad in ((), ("gaps-long",)):
+        with pytest.raises(ValueError, match="limb_mix_corruptions must name training corruptions"):
+            MotionDataModule(corpus="sample", corruptions=("gaps",), limb_mix=1.0, limb_mix_corruptions=bad)
+
+
+def test_limb_mix_corruptions_mixes_only_those_crops(monkeypatch):
+    """``limb_mix_corruptions``: crops drawn with a listed corruption are mixed (with ``limb_mix=1``, every one),
+    the others never; each crop's corruption is the one ``sample_batch`` drew for it."""
+    from mocapnet.nn import data as data_module
+
+    dm = _limb_module(corruptions=("gaps", "angular-0.5"), limb_mix_corruptions=("gaps",))
+    drawn, mixed = [], []
+    corrupt = data_module.corrupt_window
+    original = dm.limb_from_another_clip
+
+    def recording_corrupt(clean, sigma, joints, fps, corruption, *rest):
+        drawn.append(corruption)
+        return corrupt(clean, sigma, joints, fps, corruption, *rest)
+
+    def recording_mix(*args):
+        mixed.append(len(drawn))  # the crop about to be corrupted
+        return original(*args)
+
+    monkeypatch.setattr(data_module, "corrupt_window", recording_corrupt)
+    monkeypatch.setattr(dm, "limb_from_another_clip", recording_mix)
+    rng = np.random.default_rng(3)
+    for _ in range(6):
+        dm.sample_batch(rng)
+    assert set(drawn) == {"gaps", "angular-0.5"}
+    assert mixed == [i for i, c in enumerate(drawn) if c == "gaps"]
