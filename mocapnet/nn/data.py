@@ -301,6 +301,24 @@ class EpochLoader(DataLoader):
         yield from super().__iter__()
 
 
+def check_limb_mix_corruptions(names: Sequence[str], corruptions: Sequence[str], limb_mix: float) -> None:
+    """ValueError unless ``names`` (``limb_mix_corruptions``) is a non-empty list of names from the training
+    ``corruptions``, given with a ``limb_mix`` above 0 (a list with mixing off would do nothing)."""
+    training = ", ".join(dict.fromkeys(corruptions))
+    if isinstance(names, str):
+        raise ValueError(f"limb_mix_corruptions must be a list of names, e.g. '[{names}]'; got the string {names!r}")
+    if not names:
+        raise ValueError(
+            f"limb_mix_corruptions is empty; give names from the training corruptions ({training}), "
+            "or null for every crop"
+        )
+    unknown = sorted(set(names) - set(corruptions))
+    if unknown:
+        raise ValueError(f"limb_mix_corruptions: {', '.join(unknown)} not among the training corruptions ({training})")
+    if not limb_mix:
+        raise ValueError("limb_mix_corruptions is set but limb_mix is 0 (no crop is mixed); set limb_mix above 0")
+
+
 class MotionDataModule(L.LightningDataModule):
     """Splits, training crops and validation clips of one corpus (module docstring).
 
@@ -338,12 +356,7 @@ class MotionDataModule(L.LightningDataModule):
         if isinstance(limb_mix, bool) or not isinstance(limb_mix, (int, float)) or not 0.0 <= limb_mix <= 1.0:
             raise ValueError(f"limb_mix must be a probability in [0, 1], got {limb_mix!r}")
         if limb_mix_corruptions is not None:
-            unknown = sorted(set(limb_mix_corruptions) - set(corruptions))
-            if unknown or not limb_mix_corruptions:
-                raise ValueError(
-                    f"limb_mix_corruptions must name training corruptions ({', '.join(corruptions)}); "
-                    f"got {list(limb_mix_corruptions)!r}"
-                )
+            check_limb_mix_corruptions(limb_mix_corruptions, corruptions, limb_mix)
         self.save_hyperparameters()
         self.spatial: dict[float, list[np.ndarray]] = {}
         self.epoch_counter = 0

@@ -132,8 +132,8 @@ def test_training_batches_are_reproducible_per_epoch_and_resume(workers: int):
 
 
 def _limb_module(**kw) -> MotionDataModule:
-    kw = {"corruptions": ("spatial-1cm",), **kw}
-    dm = MotionDataModule(corpus="sample", mirror=True, batch_size=2, limb_mix=1.0, **kw)
+    kw = {"corruptions": ("spatial-1cm",), "limb_mix": 1.0, **kw}
+    dm = MotionDataModule(corpus="sample", mirror=True, batch_size=2, **kw)
     dm.setup()
     return dm
 
@@ -211,9 +211,30 @@ def test_limb_mix_is_checked():
     for bad in (-0.1, 1.5, True, "half"):
         with pytest.raises(ValueError, match="limb_mix must be a probability"):
             MotionDataModule(corpus="sample", limb_mix=bad)
-    for bad in ((), ("gaps-long",)):
-        with pytest.raises(ValueError, match="limb_mix_corruptions must name training corruptions"):
-            MotionDataModule(corpus="sample", corruptions=("gaps",), limb_mix=1.0, limb_mix_corruptions=bad)
+    cases = [
+        ((), 1.0, "is empty; give names from the training corruptions \\(gaps\\), or null"),
+        (("gaps-long",), 1.0, "gaps-long not among the training corruptions \\(gaps\\)"),
+        ("gaps", 1.0, "must be a list of names, e.g. '\\[gaps\\]'"),
+        (("gaps",), 0.0, "limb_mix is 0"),
+    ]
+    for names, prob, message in cases:
+        with pytest.raises(ValueError, match=message):
+            MotionDataModule(corpus="sample", corruptions=("gaps", "gaps"), limb_mix=prob, limb_mix_corruptions=names)
+
+
+def test_limb_mix_corruptions_naming_every_corruption_draws_as_the_default():
+    """Listing every training corruption mixes as the default (None) does, with the same random draws."""
+    corruptions = ("gaps", "angular-0.5")
+    default = _limb_module(corruptions=corruptions, limb_mix=0.5)
+    listed = _limb_module(corruptions=corruptions, limb_mix=0.5, limb_mix_corruptions=corruptions)
+    for a, b in zip(_batches(default), _batches(listed)):
+        for key in a:
+            np.testing.assert_array_equal(a[key].numpy(), b[key].numpy())
+
+
+def _batches(dm: MotionDataModule, n: int = 3) -> list[dict]:
+    rng = np.random.default_rng(4)
+    return [dm.sample_batch(rng) for _ in range(n)]
 
 
 def test_limb_mix_corruptions_mixes_only_those_crops(monkeypatch):
