@@ -59,6 +59,10 @@ _EBD_EXTRA = (
     ", rehearse=N (per gap N stand-in gaps where the truth is known; a gap keeps the share of the network's correction"
     " that fitted them), rehearse_mix=0 (all or nothing: interpolate the gaps where the network lost),"
     " rehearse_pool=W (0-1: weight of the share fitted to all the clip's stand-ins together),"
+    " rehearse_shrink=1 (each gap's share shrunk by how much its stand-ins disagree: a share they barely support"
+    " goes toward the interpolation),"
+    " rehearse_near=S (seconds: gaps up to this long get the stand-ins nearest to them instead of ones anywhere in"
+    " the clip), rehearse_seed=N (the seed the stand-ins are placed with; default 0),"
     " rehearse_passes=P (hide the stand-ins in P network passes instead of one, so each pass damages the clip"
     " less),"
     " short_pool=1 (gaps shorter than the gate's end keep one share fitted to all their stand-ins together,"
@@ -88,6 +92,9 @@ _BLEND_OPTIONS = (
     "rehearse_mix",
     "rehearse_pool",
     "rehearse_passes",
+    "rehearse_shrink",
+    "rehearse_near",
+    "rehearse_seed",
     "short_pool",
     "gate_end",
 )
@@ -441,6 +448,9 @@ def _single(method: str):
         rehearse_mix: int | None = None,
         rehearse_pool: float | None = None,
         rehearse_passes: int | None = None,
+        rehearse_shrink: int | None = None,
+        rehearse_near: float | None = None,
+        rehearse_seed: int | None = None,
         short_pool: int | None = None,
         gate_end: float | None = None,
         short: str | bool | None = "auto",
@@ -457,11 +467,13 @@ def _single(method: str):
         an angle method the self-check measures the network's change from (``limit_change(anchor=…)``: each
         channel's RMS distance from that method's output capped at ``limit`` × the input's noise).
         ``rehearse``, ``rehearse_margin``, ``rehearse_min_s``, ``rehearse_mix``, ``rehearse_pool``,
-        ``rehearse_passes``, ``short_pool``: EBD's rehearsal check (``ebd.GapBlend``; default: the checkpoint's
-        blend; ``rehearse=0``: off). ``gate_end``: EBD's length gate ends here (s; ``GapBlend.gate_s``
-        keeps its start). ``short``: an EBD checkpoint for the gaps shorter than ``short_max_s`` (s), run with the
-        same options (``fill_by_gap_length``); ``auto`` (default): the shipped ``ebd``'s own short-gap network when
-        the main one is shipped too; ``off`` (or ``none``): the main network alone (``_short_resolver``)."""
+        ``rehearse_passes``, ``rehearse_shrink``, ``rehearse_near``,
+        ``rehearse_seed``, ``short_pool``: EBD's rehearsal check (``ebd.GapBlend``;
+        default: the checkpoint's blend; ``rehearse=0``: off). ``gate_end``: EBD's length gate ends here (s;
+        ``GapBlend.gate_s`` keeps its start). ``short``: an EBD checkpoint for the gaps shorter than
+        ``short_max_s`` (s), run with the same options (``fill_by_gap_length``); ``auto`` (default): the shipped
+        ``ebd``'s own short-gap network when the main one is shipped too; ``off`` (or ``none``): the main network
+        alone (``_short_resolver``)."""
         from mocapnet.nn.ebd import GapBlend, as_blend
         from mocapnet.nn.features import scored_index
         from mocapnet.nn.infer import clean_channels
@@ -499,6 +511,9 @@ def _single(method: str):
                 ("rehearse_mix", rehearse_mix),
                 ("rehearse_pool", rehearse_pool),
                 ("rehearse_passes", rehearse_passes),
+                ("rehearse_shrink", rehearse_shrink),
+                ("rehearse_near_s", rehearse_near),
+                ("rehearse_seed", rehearse_seed),
                 ("short_pool", short_pool),
                 ("gate_end", gate_end),
             )

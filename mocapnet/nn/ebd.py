@@ -194,7 +194,12 @@ class GapBlend:
     clip, fitted (least squares, clipped to [0, 1]) over the stand-ins of all of them together.
     ``rehearse_passes``: the stand-ins are hidden in this many network passes (each gap's i-th stand-in in pass
     i mod passes) instead of all in one, so each pass hides less of the clip than one pass would (the real
-    gaps plus fewer stand-ins), at one network pass more each.
+    gaps plus fewer stand-ins), at one network pass more each. ``rehearse_shrink`` (with ``rehearse_mix``): each
+    gap's fitted share ``s`` is shrunk by its own uncertainty, estimated from the spread of its stand-ins
+    (``_shrunk_share``): ``s · max(0, 1 - v / s²)``; a share that few stand-ins barely support goes toward the
+    interpolation. ``rehearse_near_s``: gaps up to this long get the stand-ins nearest to them
+    (``stand_in_gaps(near_frames=…)``) instead of ones anywhere in the clip; 0: none. ``rehearse_seed``: the seed
+    the stand-ins' places are drawn with (a clip's rehearsal is the same every run; another seed, another draw).
     """
 
     spline_max_s: float = 0.5
@@ -209,6 +214,9 @@ class GapBlend:
     rehearse_pool: float = 0.0
     short_pool: bool = False
     rehearse_passes: int = 1
+    rehearse_shrink: bool = False
+    rehearse_near_s: float = 0.0
+    rehearse_seed: int = 0
 
 
 #: The shipped setting: the blend chosen on bandai2 fold 1 (``scripts/bench_ebd.py --tune``), and the rehearsal
@@ -249,18 +257,27 @@ def as_blend(settings: Mapping[str, Any]) -> GapBlend:
             "gate_s": tuple,
             "rehearsals": _whole("rehearsals"),
             "rehearse_passes": _whole("rehearse_passes"),
+            "rehearse_seed": _whole("rehearse_seed"),
             "rehearse_mix": _flag("rehearse_mix"),
             "short_pool": _flag("short_pool"),
+            "rehearse_shrink": _flag("rehearse_shrink"),
         }
         blend = GapBlend(**{k: kinds.get(k, float)(v) for k, v in settings.items()})
     except (TypeError, ValueError) as err:
         raise ValueError(f"gap_blend {dict(settings)!r} is not a GapBlend: {err}") from None
     if len(blend.gate_s) != 2:
         raise ValueError(f"gap_blend gate_s must hold two times (s), got {blend.gate_s!r}")
-    if blend.rehearsals < 0 or not blend.rehearse_margin > 0 or blend.rehearse_min_s < 0 or blend.rehearse_passes < 1:
+    if (
+        blend.rehearsals < 0
+        or not blend.rehearse_margin > 0
+        or not blend.rehearse_min_s >= 0
+        or blend.rehearse_passes < 1
+        or not blend.rehearse_near_s >= 0
+        or blend.rehearse_seed < 0
+    ):
         raise ValueError(
-            f"gap_blend needs rehearsals >= 0, rehearse_margin > 0, rehearse_min_s >= 0, rehearse_passes >= 1: "
-            f"got {blend}"
+            "gap_blend needs rehearsals >= 0, rehearse_margin > 0, rehearse_min_s >= 0, rehearse_passes >= 1, "
+            f"rehearse_near_s >= 0, rehearse_seed >= 0: got {blend}"
         )
     if not 0.0 <= blend.rehearse_pool <= 1.0:
         raise ValueError(f"gap_blend rehearse_pool must be within [0, 1], got {blend.rehearse_pool!r}")
@@ -348,11 +365,14 @@ def blend_gaps(
 
 
 def stand_in_gaps(
-    mask: np.ndarray, count: int, min_frames: float = 0.0, seed: int = 0
+    mask: np.ndarray, count: int, min_frames: float = 0.0, seed: int = 0, near_frames: float = 0.0
 ) -> tuple[np.ndarray, list[list[tuple[int, int]]]]:
     """Up to ``count`` stand-ins for each gap of ``mask [T, C]`` (``gap_list`` order) of at least ``min_frames``
     frames: the same channels and length, placed at random (``seed``) where those channels are observed over the
     stand-in and one frame on each side, apart from every gap and every other stand-in of any of those channels.
+    A gap of at most ``near_frames`` frames gets its stand-ins instead at the places nearest to it (either side,
+    nearest first), with at least the gap's length of observed frames between a stand-in and the gap and between
+    two of its stand-ins.
     Gaps that touch the clip's ends get none (their interpolation has one side only). Returns ``(stand-in mask
     [T, C], per gap its stand-ins as (first frame, end frame))``."""
     rng = np.random.default_rng(seed)
@@ -367,12 +387,20 @@ def stand_in_gaps(
             free = np.concatenate([[0], np.cumsum(~busy)])
             span = length + 2  # the stand-in and its two observed neighbours
             starts = np.flatnonzero(free[span:] - free[:-span] == span) + 1  # stand-in starts s: frames s-1 … s+L
+            apart = length + 1  # |s' - s| beyond this: the frames s'-1 … s'+L of another stand-in stay free
+            near = length <= near_frames
+            if near:
+                starts = starts[(starts + 2 * length <= a) | (starts >= b + length)]
+                apart = 2 * length
             while len(starts) and len(mine) < count:
-                s = int(rng.choice(starts))
+                if near:
+                    s = int(starts[np.argmin(np.where(starts < a, a - starts - length, starts - b))])
+                else:
+                    s = int(rng.choice(starts))
                 busy[s - 1 : s + length + 1] = True
                 fake[s : s + length, cols] = True
                 mine.append((s, s + length))
-                starts = starts[np.abs(starts - s) > length + 1]  # the starts whose frames s'-1 … s'+L stay free
+                starts = starts[np.abs(starts - s) > apart]
         out.append(mine)
     return fake, out
 
@@ -392,14 +420,17 @@ def rehearse(
     ``blend.rehearse_margin`` × the blend's (then none); with ``blend.rehearse_mix`` a gap at least
     ``blend.gate_s[1]`` long keeps instead the least-squares share of the blend's correction to the
     interpolation on its stand-ins (all of it when the blend did not move the stand-ins at all), mixed with
-    weight ``blend.rehearse_pool`` with the share fitted to the stand-ins of all those gaps together; with
+    weight ``blend.rehearse_pool`` with the share fitted to the stand-ins of all those gaps together (each gap's own
+    share shrunk by its stand-ins' spread first with ``blend.rehearse_shrink``, ``_shrunk_share``); with
     ``blend.short_pool`` the shorter gaps keep instead the share fitted to the stand-ins of all of them together.
     Gaps without a stand-in keep it all (nothing to judge by)."""
     gaps = gap_list(mask)
     keep = np.ones(len(gaps))
     if blend.rehearsals <= 0:
         return keep
-    fake, stand_ins = stand_in_gaps(mask, blend.rehearsals, blend.rehearse_min_s * fps)
+    fake, stand_ins = stand_in_gaps(
+        mask, blend.rehearsals, blend.rehearse_min_s * fps, blend.rehearse_seed, blend.rehearse_near_s * fps
+    )
     if not fake.any():
         return keep
     passes = max(1, min(blend.rehearse_passes, max(map(len, stand_ins))))  # a pass with no stand-in is idle
@@ -411,6 +442,7 @@ def rehearse(
         trials.append((base, blend_gaps(trial, both, network(both), fps, replace(blend, rehearsals=0))[0]))
     fits: dict[int, tuple[float, float]] = {}  # mix-eligible gap -> (step · residual, step²) over its stand-ins
     short: dict[int, tuple[float, float]] = {}  # with short_pool, the same for each shorter gap
+    own: dict[int, float] = {}  # mix-eligible gap -> its own share
     for g, ((cols, a, b), places) in enumerate(zip(gaps, stand_ins)):
         if places:
             pieces = [(i % passes, np.arange(s, e)) for i, (s, e) in enumerate(places)]
@@ -419,16 +451,20 @@ def rehearse(
             fill_s = np.concatenate([trials[k][1][rows][:, cols] for k, rows in pieces])
             long_gap = b - a >= blend.gate_s[1] * fps
             if (blend.rehearse_mix and long_gap) or (blend.short_pool and not long_gap):
-                step = wrap_deg(fill_s - base_s)
-                fit = (float((step * wrap_deg(truth - base_s)).sum()), float((step**2).sum()))
+                step, resid = wrap_deg(fill_s - base_s), wrap_deg(truth - base_s)
+                fit = (float((step * resid).sum()), float((step**2).sum()))
                 (fits if long_gap else short)[g] = fit
+                if long_gap:
+                    own[g] = (
+                        _shrunk_share(*_per_stand_in(step, resid, pieces)) if blend.rehearse_shrink else _share(*fit)
+                    )
                 continue
             err = [float((wrap_deg(x - truth) ** 2).sum()) for x in (fill_s, base_s)]
             keep[g] = float(err[1] >= blend.rehearse_margin * err[0])
     if fits:
         pooled = _share(*np.sum(list(fits.values()), axis=0))
-        for g, fit in fits.items():
-            keep[g] = (1.0 - blend.rehearse_pool) * _share(*fit) + blend.rehearse_pool * pooled
+        for g in fits:
+            keep[g] = (1.0 - blend.rehearse_pool) * own[g] + blend.rehearse_pool * pooled
     if short:
         keep[list(short)] = _share(*np.sum(list(short.values()), axis=0))
     return keep
@@ -450,3 +486,31 @@ def _share(fit: float, power: float) -> float:
     """Least-squares share ``fit / power`` of a correction (step · residual over step²), clipped to [0, 1]; all
     of it (1) when the correction is zero."""
     return min(max(fit / power, 0.0), 1.0) if power > 0 else 1.0
+
+
+def _per_stand_in(
+    step: np.ndarray, resid: np.ndarray, pieces: list[tuple[int, np.ndarray]]
+) -> tuple[np.ndarray, np.ndarray]:
+    """``step`` and ``resid`` ``[R, C']`` (the stand-ins' rows one after another, ``pieces`` order: (pass, rows))
+    → per stand-in ``(Σ step · resid, Σ step²)``, each ``[n]``."""
+    parts = np.cumsum([len(rows) for _, rows in pieces])[:-1]
+    pairs = [((x * r).sum(), (x**2).sum()) for x, r in zip(np.split(step, parts), np.split(resid, parts))]
+    fits, powers = np.array(pairs, dtype=np.float64).T
+    return fits, powers
+
+
+def _shrunk_share(fits: np.ndarray, powers: np.ndarray) -> float:
+    """The least-squares share of a correction over ``n`` stand-ins (``fits [n]``: step · residual, ``powers [n]``:
+    step², each summed over one stand-in), shrunk by its uncertainty: ``s · max(0, 1 - v / s²)`` clipped to [0, 1],
+    with ``s = Σ fits / Σ powers`` and ``v = n / (n - 1) · Σ (fits - s · powers)² / (Σ powers)²`` the linearised
+    variance of that ratio from the stand-ins' spread (positive-part James-Stein). Fewer than two stand-ins give no
+    spread: ``_share`` unchanged."""
+    total = float(powers.sum())
+    if len(fits) < 2 or total <= 0:
+        return _share(float(fits.sum()), total)
+    s = float(fits.sum()) / total
+    if s <= 0:
+        return 0.0
+    n = len(fits)
+    v = n / (n - 1) * float(((fits - s * powers) ** 2).sum()) / total**2
+    return min(max(s * (1.0 - v / s**2), 0.0), 1.0)

@@ -157,6 +157,48 @@ def test_stand_in_gaps_copy_each_gap_onto_observed_frames_apart_from_every_gap()
     assert not stand_in_gaps(gap_mask((40, 2), [(10, 30, [0])]), 3)[0].any()  # no room: none
 
 
+def test_near_stand_ins_are_the_nearest_places_a_gaps_length_apart():
+    """A gap of at most ``near_frames`` frames gets as stand-ins the nearest free places on either side, nearest
+    first, with at least the gap's length of observed frames between each and the gap and between two of them;
+    longer gaps get random ones as before."""
+    mask = gap_mask((600, 2), [(300, 315, [0, 1])])
+    fake, places = stand_in_gaps(mask, 4, near_frames=15)
+    # 15 observed frames on each side of the gap, then 16 more between stand-ins (ties: the earlier place first)
+    assert places == [[(270, 285), (330, 345), (239, 254), (361, 376)]]
+    assert fake.sum() == 4 * 15 * 2 and not (fake & mask).any()
+    assert stand_in_gaps(mask, 4, near_frames=np.inf, seed=7)[1] == places  # placed, not drawn
+    # a crowded side: a gap near the clip's start leaves room on its far side only
+    crowded = gap_mask((200, 1), [(20, 30, [0])])
+    (mine,) = stand_in_gaps(crowded, 3, near_frames=10)[1]
+    assert mine == [(40, 50), (61, 71), (82, 92)]
+    assert stand_in_gaps(crowded, 3, near_frames=9)[1] == stand_in_gaps(crowded, 3)[1]  # 10 frames > 9: random
+    assert as_blend({"rehearse_near_s": 0.5}).rehearse_near_s == 0.5
+    with pytest.raises(ValueError, match="rehearse_near_s >= 0"):
+        as_blend({"rehearse_near_s": -1})
+    with pytest.raises(ValueError, match="rehearse_near_s >= 0"):
+        as_blend({"rehearse_near_s": float("nan")})
+
+
+def test_rehearse_seed_places_the_stand_ins_with_that_seed():
+    truth = smooth_channels(600)
+    mask = gap_mask(truth.shape, [(300, 315, [0, 1])])
+    seen = []
+
+    def network(m):
+        seen.append(m.copy())
+        return truth
+
+    for seed in (0, 1):
+        rehearse(np.where(mask, np.nan, truth), mask, FPS, dataclasses.replace(GAP_BLEND, rehearse_seed=seed), network)
+        np.testing.assert_array_equal(seen[-1], mask | stand_in_gaps(mask, GAP_BLEND.rehearsals, seed=seed)[0])
+    assert not (seen[0] == seen[1]).all()
+    assert as_blend({"rehearse_seed": 3}).rehearse_seed == 3
+    with pytest.raises(ValueError, match="rehearse_seed"):
+        as_blend({"rehearse_seed": -1})
+    with pytest.raises(ValueError, match="rehearse_seed must be a whole number"):
+        as_blend({"rehearse_seed": 0.5})
+
+
 def test_rehearsal_keeps_the_network_where_it_wins_on_the_stand_ins_and_interpolates_where_it_loses():
     truth = smooth_channels(600)
     mask = gap_mask(truth.shape, [(100, 120, [0]), (300, 330, [1, 2]), (590, 600, [3])])
@@ -297,6 +339,52 @@ def test_rehearse_pool_mixes_each_gaps_share_with_the_clips_pooled_one():
         as_blend({"rehearse_pool": 1.5})
 
 
+def test_shrunk_share_is_the_fitted_share_less_its_stand_ins_spread():
+    """``_shrunk_share``: stand-ins that agree keep the least-squares share; disagreeing ones shrink it by
+    ``1 - v / s²`` (v: the ratio's variance from their spread), down to 0; one stand-in gives no spread."""
+    from mocapnet.nn.ebd import _share, _shrunk_share
+
+    powers = np.array([2.0, 2.0, 2.0, 2.0])
+    assert _shrunk_share(np.array([1.0, 1.0, 1.0, 1.0]), powers) == pytest.approx(0.5)
+    fits = np.array([1.6, 0.4, 1.2, 0.8])  # s = 4 / 8 = 0.5; v = 4/3 · (0.36 + 0.36 + 0.04 + 0.04) / 64
+    v = 4 / 3 * 0.8 / 64
+    assert _shrunk_share(fits, powers) == pytest.approx(0.5 * (1 - v / 0.25))
+    assert _shrunk_share(np.array([2.0, -1.0, 1.5, -0.5]), powers) == 0.0  # the spread swamps s = 0.25
+    assert _shrunk_share(np.array([-1.0, -1.0]), np.array([1.0, 1.0])) == 0.0
+    assert _shrunk_share(np.array([1.0]), np.array([2.0])) == _share(1.0, 2.0)
+    assert _shrunk_share(np.array([0.0, 0.0]), np.array([0.0, 0.0])) == 1.0  # no correction: all of it
+    assert _shrunk_share(np.array([9.0, 9.0]), np.array([2.0, 2.0])) == 1.0  # clipped
+
+
+def test_rehearse_shrink_trusts_a_network_less_where_its_stand_ins_disagree():
+    """A network exact on every stand-in keeps all of its blend with or without ``rehearse_shrink``; one that is
+    exact on some of a gap's stand-ins and overshoots 3x on others keeps less with it than without."""
+    from mocapnet.fill import gap_fill
+
+    truth = smooth_channels(900)
+    mask = gap_mask(truth.shape, [(400, 430, [0, 1])])
+    channels = np.where(mask, np.nan, truth)
+    blend = dataclasses.replace(GAP_BLEND, rehearsals=4, rehearse_mix=True, speed_factor=np.inf)
+    shrink = dataclasses.replace(blend, rehearse_shrink=True)
+    np.testing.assert_allclose(rehearse(channels, mask, FPS, shrink, lambda m: truth), [1.0])
+    _, places = stand_in_gaps(mask, 4)
+    assert len(places[0]) == 4
+    wild = np.zeros(len(truth), dtype=bool)
+    for s, e in places[0][:2]:
+        wild[s:e] = True
+
+    def uneven(m):  # exact on two stand-ins, 3x the correction on the other two
+        base = gap_fill(np.where(m, np.nan, truth), m, blend.spline_max_s * FPS)
+        return np.where(wild[:, None], base + 3.0 * (truth - base), truth)
+
+    plain = rehearse(channels, mask, FPS, blend, uneven)[0]
+    shrunk = rehearse(channels, mask, FPS, shrink, uneven)[0]
+    assert 0.0 <= shrunk < plain < 1.0
+    assert as_blend({"rehearse_shrink": 1}).rehearse_shrink is True
+    with pytest.raises(ValueError, match="rehearse_shrink must be 0 or 1"):
+        as_blend({"rehearse_shrink": 0.5})
+
+
 def test_short_pool_gives_every_short_gap_one_share_fitted_over_all_their_stand_ins():
     """With ``short_pool`` the gaps shorter than the gate's end keep one share per clip: the least-squares fit of
     the blend's correction over the stand-ins of all of them at once; longer gaps keep their own fitted share."""
@@ -371,6 +459,7 @@ def test_rehearse_is_an_ebd_option_of_whole_numbers():
     bad_options += ("ebd:rehearse_margin=0", "ebd:rehearse_min_s=-1", "ebf-free:rehearse_margin=0.5")
     bad_options += ("ebd:rehearse_min_s=inf", "ebd:rehearse_margin=inf", "ebd:rehearse_margin=true")
     bad_options += ("ebd:rehearse_mix=2", "ebd:rehearse_mix=0.5", "ebf:rehearse_mix=1")
+    bad_options += ("ebd:rehearse_shrink=2", "ebd:rehearse_near=-1", "ebd:rehearse_seed=1.5", "ebf:rehearse_seed=1")
     for bad in bad_options:
         with pytest.raises(ValueError, match="rehearse"):
             build_method(bad)
@@ -379,6 +468,7 @@ def test_rehearse_is_an_ebd_option_of_whole_numbers():
         as_blend({"rehearse_mix": 1}).rehearse_mix is True and as_blend({"rehearse_mix": False}).rehearse_mix is False
     )
     build_method("ebd:rehearse=2,rehearse_mix=1")
+    build_method("ebd:rehearse_shrink=1,rehearse_near=0.5,rehearse_seed=2")
     for bad in (
         {"rehearsals": -1},
         {"rehearsals": 2.7},
