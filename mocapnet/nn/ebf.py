@@ -47,6 +47,16 @@ from mocapnet.nn.layers import (
     tapered,
 )
 
+#: Training losses of the EBF (``EBF.loss_terms``): every sample's squared error alike (``"samples"``), or each
+#: crop's divided by that of a Gaussian of ``RATIO_REFERENCE_S`` on the same noisy crop plus ``RATIO_FLOOR_DEG``²
+#: (``"gaussian_ratio"``: the squared ratio the benchmark reports, per crop, so heavy noise does not outweigh light).
+EBF_LOSSES = ("samples", "gaussian_ratio")
+#: The reference Gaussian's standard deviation (s): the protocol's gaussian-58ms.
+RATIO_REFERENCE_S = 0.058
+#: Degrees added (squared) to the reference's mean squared error, so a crop the Gaussian fits almost exactly is
+#: not weighted without bound.
+RATIO_FLOOR_DEG = 0.1
+
 
 class EBF(CleanerModule):
     """Encoder-Bidirectional-Filter denoiser for ``n_channels`` scored channels (degrees).
@@ -80,8 +90,13 @@ class EBF(CleanerModule):
         skeleton_hash: str = "",
         fps: float = 0.0,
         corpus: str = "",
+        loss: str = "samples",
     ) -> None:
         super().__init__(n_channels, lr, weight_decay, lr_patience)
+        if loss not in EBF_LOSSES:
+            raise ValueError(f"loss must be one of {EBF_LOSSES}, got {loss!r}")
+        if loss == "gaussian_ratio" and not fps > 0:
+            raise ValueError(f"loss='gaussian_ratio' needs the frame rate (fps > 0), got fps={fps!r}")
         if filter_shape not in ("gaussian", "free"):
             raise ValueError(f"filter_shape must be 'gaussian' or 'free', got {filter_shape!r}")
         if norm not in NORMS:
@@ -183,6 +198,25 @@ class EBF(CleanerModule):
 
     def predict_batch(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
         return self(batch["filled"], batch["angvel"], batch if "scale" in batch else None)
+
+    @property
+    def loss_in_degrees(self) -> bool:
+        return self.hparams.get("loss", "samples") == "samples"
+
+    def loss_terms(self, batch: dict[str, torch.Tensor], pred: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Squared errors (degrees², ``loss="samples"``) over every sample; ``"gaussian_ratio"``: each crop's
+        divided by the mean squared error of a Gaussian of ``RATIO_REFERENCE_S`` (at the model's ``fps``) on the
+        same noisy crop (``batch["filled"]``) plus ``RATIO_FLOOR_DEG``² (``[B, 1, 1]``, no gradient)."""
+        sq, sel = super().loss_terms(batch, pred)
+        if self.hparams.get("loss", "samples") == "samples":
+            return sq, sel
+        with torch.no_grad():
+            filled, clean = batch["filled"], batch["clean"]
+            log_sigma = filled.new_full(filled.shape, float(np.log(RATIO_REFERENCE_S * self.hparams.fps)))
+            ref = (gaussian_filter(filled, log_sigma, self.hparams.half) - clean) ** 2
+            weight = sel.to(ref.dtype)
+            ref_mse = (ref * weight).sum((1, 2), keepdim=True) / weight.sum((1, 2), keepdim=True).clamp(min=1.0)
+        return sq / (ref_mse + RATIO_FLOOR_DEG**2), sel
 
     def predict_chunked(
         self, batch: dict[str, torch.Tensor], starts: np.ndarray, cores: np.ndarray, width: int, per_group: int

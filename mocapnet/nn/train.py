@@ -95,8 +95,8 @@ def resume_path(ckpt_path: str | None, ckpt_dir: Path, averaged: bool = False) -
     return str(path)
 
 
-#: Hyper-parameters a warm restart may change: how to train (the loss too: ``gap_loss``) or start (``sigma_init``,
-#: overwritten by the loaded weights), and the inference-only settings a shipped checkpoint carries
+#: Hyper-parameters a warm restart may change: how to train (the loss too: ``gap_loss``, ``loss``) or start
+#: (``sigma_init``, overwritten by the loaded weights), and the inference-only settings a shipped checkpoint carries
 #: (``change_limit``, ``gap_blend``).
 _RETUNABLE = frozenset(
     {
@@ -106,6 +106,7 @@ _RETUNABLE = frozenset(
         "lr_schedule",
         "dropout",
         "gap_loss",
+        "loss",
         "sigma_init",
         "change_limit",
         "gap_blend",

@@ -136,3 +136,29 @@ def test_ebf_chunked_sequence_mode_equals_running_every_window(kind, norm, chunk
         fast = model.predict_chunked(batch, starts, cores, width, per_group)
         every = predict_windows(model, batch, starts, cores, width, per_group)
     torch.testing.assert_close(fast, every, atol=1e-4, rtol=0)
+
+
+def test_gaussian_ratio_loss_divides_each_crop_by_the_reference_gaussians_error(tiny, sample, batch):
+    """``loss="gaussian_ratio"``: each crop's squared errors divided by the mean squared error of gaussian-58ms
+    (at the model's fps) on that noisy crop plus ``RATIO_FLOOR_DEG``²; ``"samples"`` leaves them in degrees²."""
+    from scipy.ndimage import gaussian_filter1d
+
+    from mocapnet.nn.ebf import RATIO_FLOOR_DEG, RATIO_REFERENCE_S
+
+    model = tiny("ebf-free", sample, loss="gaussian_ratio")
+    assert not model.loss_in_degrees and tiny("ebf-free", sample).loss_in_degrees
+    pred = batch["clean"] + 1.0
+    sq, sel = model.loss_terms(batch, pred)
+    plain, same = tiny("ebf-free", sample).loss_terms(batch, pred)
+    assert sel.all() and same.all() and torch.allclose(plain, torch.ones_like(plain))
+    sigma = RATIO_REFERENCE_S * sample.fps
+    noisy, clean = batch["filled"].double().numpy(), batch["clean"].double().numpy()
+    for b in range(len(noisy)):  # the reference: a Gaussian with edges padded by the nearest frame
+        ref = gaussian_filter1d(noisy[b], sigma, axis=0, mode="nearest", truncate=model.hparams.half / sigma)
+        expected = 1.0 / (float(((ref - clean[b]) ** 2).mean()) + RATIO_FLOOR_DEG**2)
+        assert torch.allclose(sq[b], torch.full_like(sq[b], expected), rtol=1e-4)
+    assert sq[0, 0, 0] != sq[1, 0, 0]  # one weight per crop
+    with pytest.raises(ValueError, match="loss must be one of"):
+        tiny("ebf", sample, loss="ratio")
+    with pytest.raises(ValueError, match="fps"):
+        tiny("ebf", sample, loss="gaussian_ratio", fps=0.0)

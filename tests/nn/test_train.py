@@ -80,6 +80,22 @@ def test_fast_dev_run(model, tmp_path):
     assert (tmp_path / cfg.name / "result.json").exists()
 
 
+def test_fast_dev_run_with_the_gaussian_ratio_loss(tmp_path):
+    cfg = compose_cfg(
+        [
+            "model=ebf",
+            "corruption=angular",
+            f"runs_root={tmp_path}",
+            "+trainer.fast_dev_run=true",
+            "model.loss=gaussian_ratio",
+        ]
+        + QUICK
+        + TINY_MODEL["ebf"]
+    )
+    train(cfg)
+    assert (tmp_path / cfg.name / "result.json").exists()
+
+
 def _final_state(tmp_path: Path, name: str, epochs: int, ckpt_path: str = "null") -> dict[str, torch.Tensor]:
     cfg = compose_cfg(
         [f"runs_root={tmp_path}", f"name={name}", f"trainer.max_epochs={epochs}", f"ckpt_path={ckpt_path}"]
