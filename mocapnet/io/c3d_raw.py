@@ -254,10 +254,21 @@ def read_layout(path: str | os.PathLike) -> C3DLayout:
     rates = _number(params, processor, "ANALOG", "RATE"), _number(params, processor, "POINT", "RATE")
     if channels is not None and all(r is not None and 0 < r < 1e7 for r in rates):
         analog_words = _whole(channels, 0) * round(rates[0] / rates[1])
-    stride = (4 * n_points + analog_words) * (4 if scale < 0 else 2)
+    word_bytes = 4 if scale < 0 else 2
+    stride = (4 * n_points + analog_words) * word_bytes
     in_block = (len(raw) - data_offset) // stride if stride else frames
     if words[4] == 0xFFFF:  # the header's 16-bit last frame overflowed: a recording of 65,535 frames or more
         frames = long_count if long_count and long_count > frames else frames
+    header_points = int(words[1])
+    if header_points != n_points and stride and in_block < frames:
+        header_stride = (4 * header_points + analog_words) * word_bytes
+        if header_stride and (len(raw) - data_offset) // header_stride >= frames:
+            raise MocapFileError(
+                f"{path}: the header says {header_points} points per frame and POINT:USED says {n_points}; the data "
+                f"block holds {frames} frames of {header_points} points, not of {n_points}, so the file's readers "
+                f"(which take POINT:USED) would decode garbage: set POINT:USED to {header_points} in the file's "
+                f"software and export it again"
+            )
     present = min(in_block, frames)
     return C3DLayout(
         path, processor, params, n_points, analog_words, scale < 0, abs(scale), data_offset, frames, present,

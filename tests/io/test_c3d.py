@@ -114,6 +114,24 @@ def test_truncated_file_names_both_frame_counts(shared, tmp_path):
         read_c3d(header_only, allow_truncated=True)
 
 
+def test_header_and_point_used_disagreeing_is_named_not_called_truncated(shared, tmp_path):
+    """A file whose data block fits the header's point count but not ``POINT:USED`` (which ezc3d and the ``c3d``
+    package read by) is refused naming both counts, with or without ``--allow-truncated``: read by POINT:USED its
+    data would be garbage, and it is not truncated."""
+    src = shared / "c3d/btkdata/Eb015pi.c3d"
+    raw = bytearray(src.read_bytes())
+    layout = read_layout(src)
+    used = layout.parameters[("POINT", "USED")]
+    assert used.type == 2 and int(np.frombuffer(used.data[:2], "<i2")[0]) == layout.n_points
+    raw[used.offset : used.offset + 2] = np.array([layout.n_points + 1], "<i2").tobytes()
+    bad = tmp_path / "bad.c3d"
+    bad.write_bytes(bytes(raw))
+    wanted = rf"header says {layout.n_points} points per frame and POINT:USED says {layout.n_points + 1}"
+    for allow in (False, True):
+        with pytest.raises(MocapFileError, match=wanted):
+            read_c3d(bad, allow_truncated=allow)
+
+
 def test_not_a_c3d(tmp_path):
     path = tmp_path / "x.c3d"
     path.write_bytes(b"HIERARCHY\n" * 100)
