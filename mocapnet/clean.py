@@ -107,14 +107,15 @@ def clean_bvh_file(src: Path, out: Path, options: CleanOptions) -> CleanResult:
     """Denoise (and with a mask, fill) a BVH file with a joint-angle method and write the result. The default
     (``auto``, ``mocapnet.methods.auto_angles``): the networks shipped for the skeleton, else ``gaussian-cv``;
     the result's message and ``details["auto"]`` say which and why."""
-    from mocapnet.fill import unwrap_observed
+    from mocapnet.branches import StoredBranches
     from mocapnet.io import read_bvh, write_bvh
     from mocapnet.methods.registry import MethodSpec, build_method
 
     stored = read_bvh(src, unwrap=False)
     mask = read_mask(options.mask, stored) if options.mask else np.zeros(stored.channels.shape, dtype=bool)
-    # rotations made continuous without reading the masked placeholders (a gap hides a wrap only in a wrapped column)
-    motion = stored.with_channels(unwrap_observed(stored.channels, mask, stored.skeleton.rotation_mask, copy=False))
+    # rotations made continuous (wraps and Euler flips) without reading the masked placeholders; put back at the end
+    branches, continuous = StoredBranches.of(stored.channels, mask, stored.skeleton)
+    motion = stored.with_channels(continuous)
     method, why = options.method, ""
     if method is None and options.model:
         method = "ebd+ebf" if mask.any() else "ebf"
@@ -141,7 +142,7 @@ def clean_bvh_file(src: Path, out: Path, options: CleanOptions) -> CleanResult:
             f"{options.mask}: {method} cannot fill {label}{whole}: {int(unfilled[:, c].sum())} samples left missing "
             f"from frame {t + 1}; unmask some of its frames, or use ebd where one is shipped for the skeleton"
         )
-    write_bvh(out, motion.with_channels(cleaned), inputs=(src,))
+    write_bvh(out, motion.with_channels(branches.restore(cleaned)), inputs=(src,))
     n_missing = int(mask.sum())
     return CleanResult(
         src, out, method, motion.n_frames, n_missing,

@@ -1,0 +1,91 @@
+"""A file's rotations made continuous for cleaning and written back as it stores them (``mocapnet.branches``):
+Euler flips near gimbal lock, wraps, and unchanged samples kept exactly."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from mocapnet.branches import StoredBranches, flip_states, flip_triples, triple_columns
+from mocapnet.clean import CleanOptions, clean_bvh_file
+from mocapnet.io import read_bvh, write_bvh
+from mocapnet.kinematics import euler_to_matrix, wrap_deg
+
+
+def geodesic_deg(a: np.ndarray, b: np.ndarray, seq: str) -> np.ndarray:
+    """Angle (degrees) of the rotation between Euler triples ``a`` and ``b`` ``[T, 3]``."""
+    rel = np.einsum("tji,tjk->tik", euler_to_matrix(a, seq), euler_to_matrix(b, seq))
+    return np.degrees(np.arccos(np.clip((np.trace(rel, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)))
+
+
+@pytest.mark.parametrize("seq", ["XYZ", "XZY", "YXZ", "YZX", "ZXY", "ZYX"])
+def test_the_flipped_triple_is_the_same_rotation(seq):
+    x = np.random.default_rng(0).uniform(-180.0, 180.0, (50, 3))
+    np.testing.assert_allclose(euler_to_matrix(flip_triples(x), seq), euler_to_matrix(x, seq), atol=1e-12)
+
+
+def canonical_flipping(cmu_short, seq_cols=None):
+    """The CMU clip with one joint's rotation made to pass near gimbal lock and stored as canonical Euler angles
+    (middle angle within ±90°, as scipy and many exporters give them): its stored triple flips where the smooth
+    rotation crosses the lock. Returns (motion with the stored angles, joint's columns, order, true triples)."""
+    sk = cmu_short.skeleton
+    cols = triple_columns(sk)[5]
+    seq = "".join(sk.channel_labels[c].split(".")[-1][0] for c in cols)
+    t = np.arange(cmu_short.n_frames) / cmu_short.fps
+    truth = np.stack([40.0 * np.sin(1.3 * t), 89.0 + 6.0 * np.sin(2.1 * t), 30.0 * np.cos(0.7 * t)], axis=1)
+    stored = Rotation.from_matrix(euler_to_matrix(truth, seq)).as_euler(seq, degrees=True)
+    channels = cmu_short.channels.copy()
+    channels[:, cols] = stored
+    return cmu_short.with_channels(channels), cols, seq, truth
+
+
+def test_flip_states_follow_the_exporters_flips(cmu_short):
+    motion, cols, seq, truth = canonical_flipping(cmu_short)
+    stored = motion.channels[:, cols]
+    jumps = np.abs(wrap_deg(np.diff(stored, axis=0))).sum(axis=1) > 180.0
+    assert jumps.sum() >= 4  # the stored triple flips several times
+    state = flip_states(stored, np.ones(len(stored), dtype=bool))
+    assert (np.diff(state.astype(int)) != 0).sum() == jumps.sum()
+    continuous = np.where(state[:, None], flip_triples(stored), stored)
+    assert np.abs(wrap_deg(np.diff(continuous, axis=0))).sum(axis=1).max() < 20.0
+    np.testing.assert_allclose(geodesic_deg(continuous, truth, seq), 0.0, atol=1e-4)  # arccos near 1
+
+
+@pytest.mark.parametrize("method", ["gaussian-58ms", "gaussian-cv", "lerp"])
+def test_clean_smooths_through_euler_flips_and_writes_the_files_branches(cmu_short, tmp_path, method):
+    """Cleaning a file whose stored Euler triple flips near gimbal lock: the joint is smoothed as it moves (its
+    rotation stays within a few degrees of the truth; channel by channel it was turned by up to 180°), and every
+    sample the method leaves alone is written exactly as stored, the root included."""
+    motion, cols, seq, truth = canonical_flipping(cmu_short)
+    write_bvh(tmp_path / "in.bvh", motion)
+    stored = read_bvh(tmp_path / "in.bvh", unwrap=False).channels
+    mask = np.zeros(stored.shape, dtype=bool)
+    mask[300:310, cols] = True
+    np.save(tmp_path / "mask.npy", mask)
+    options = CleanOptions(method=method, mask=str(tmp_path / "mask.npy") if method == "lerp" else None)
+    clean_bvh_file(tmp_path / "in.bvh", tmp_path / "out.bvh", options)
+    got = read_bvh(tmp_path / "out.bvh", unwrap=False).channels
+    assert geodesic_deg(got[:, cols], truth, seq).max() < 3.0
+    scored = motion.skeleton.scored_mask
+    np.testing.assert_array_equal(got[:, ~scored], stored[:, ~scored])  # the root and context joints, as stored
+    if method == "lerp":
+        np.testing.assert_array_equal(got[~mask], stored[~mask])
+    rotation = motion.skeleton.rotation_mask
+    assert got[:, rotation].min() >= -180.0 and got[:, rotation].max() <= 180.0  # the file's own range
+
+
+def test_restore_inverts_of_and_keeps_a_continuously_stored_column(cmu_short):
+    motion, cols, _, _ = canonical_flipping(cmu_short)
+    stored = motion.channels.copy()
+    stored[:, 10] = np.linspace(-20.0, 700.0, len(stored))  # a column stored continuously, far beyond one turn
+    mask = np.zeros(stored.shape, dtype=bool)
+    mask[100:160, [10, *cols]] = True
+    branches, continuous = StoredBranches.of(stored, mask, motion.skeleton)
+    np.testing.assert_array_equal(branches.restore(continuous)[~mask], stored[~mask])
+    filled = continuous.copy()
+    filled[mask] = np.nan
+    from mocapnet.fill import lerp_fill
+
+    out = branches.restore(lerp_fill(filled, mask))
+    np.testing.assert_allclose(out[100:160, 10], stored[100:160, 10], atol=1e-9)  # the turn it stores, kept
