@@ -145,12 +145,16 @@ class Skeleton:
 
 @dataclass(frozen=True, eq=False)
 class Motion:
-    """Joint-angle motion: ``channels [T, C]`` (degrees / skeleton units) sampled at ``fps``."""
+    """Joint-angle motion: ``channels [T, C]`` (degrees / skeleton units) sampled at ``fps``. A motion read from
+    a file keeps what a writer needs to give it back as the file had it: ``frame_time`` (s, the file's own
+    ``Frame Time``, which ``fps`` may round: 0.033333 s is 30 fps) and ``encoding`` (of its joint names)."""
 
     skeleton: Skeleton
     channels: np.ndarray
     fps: float
     name: str = ""
+    frame_time: float | None = None
+    encoding: str = "utf-8"
 
     def __post_init__(self) -> None:
         ch = np.asarray(self.channels, dtype=np.float64)

@@ -680,7 +680,13 @@ def _parse(raw: bytes, path: Path, cm_per_unit: float | None, unwrap: bool) -> M
     fps = 1.0 / frame_time
     if abs(fps - round(fps)) < 1e-3 * fps:  # "Frame Time: 0.0333333" means 30 fps
         fps = float(round(fps))
-    return Motion(skeleton, data, fps, name=name)
+    header = _MOTION_LINE_RE.search(raw)
+    try:  # the names' encoding, written back as read (``_decode_name``)
+        raw[: header.start() if header else len(raw)].decode("utf-8")
+        encoding = "utf-8"
+    except UnicodeDecodeError:
+        encoding = "latin-1"
+    return Motion(skeleton, data, fps, name=name, frame_time=frame_time, encoding=encoding)
 
 
 def _writable_problem(motion: Motion) -> str | None:
@@ -710,6 +716,15 @@ def _writable_problem(motion: Motion) -> str | None:
     if motion.n_frames == 0:
         return "the motion has no frames"
     return None
+
+
+def _frame_time_text(motion: Motion) -> str:
+    """``Frame Time`` as the file it was read from had it (``motion.frame_time``, shortest round-trip digits) while
+    it still gives the motion's ``fps`` (within ``read_bvh``'s 0.1 % rounding), else ``1 / fps``."""
+    kept = motion.frame_time
+    if kept is not None and abs(1.0 / kept - motion.fps) < 1e-3 * motion.fps:
+        return repr(float(kept))
+    return f"{1.0 / motion.fps:.8g}"
 
 
 def format_bvh(motion: Motion, precision: int = 6) -> str:
@@ -745,14 +760,13 @@ def format_bvh(motion: Motion, precision: int = 6) -> str:
         out.extend(
             [f"{tab}{'JOINT' if depth else 'ROOT'} {sk.names[j]}", f"{tab}{{", f"{tab}\tOFFSET {fmt(sk.offsets[j])}"]
         )
-        if sk.channels[j]:
-            out.append(f"{tab}\tCHANNELS {len(sk.channels[j])} {' '.join(sk.channels[j])}")
+        out.append(f"{tab}\tCHANNELS {' '.join([str(len(sk.channels[j])), *sk.channels[j]])}")  # 'CHANNELS 0' too
         stack.append((j, depth, True))
         stack.extend((c, depth + 1, False) for c in reversed(sk.children[j]))
     if len(order) != sk.n_joints:
         unreachable = sk.n_joints - len(order)
         raise ValueError(f"{motion.name or 'motion'}: cannot write as BVH: {unreachable} joints not below the root")
-    out += ["MOTION", f"Frames: {motion.n_frames}", f"Frame Time: {1.0 / motion.fps:.8g}"]
+    out += ["MOTION", f"Frames: {motion.n_frames}", f"Frame Time: {_frame_time_text(motion)}"]
     starts = sk.channel_offsets
     columns = np.concatenate([np.arange(starts[j], starts[j + 1]) for j in order])
     buf = io.StringIO()
@@ -773,7 +787,11 @@ def write_bvh(path: str | os.PathLike, motion: Motion, inputs: tuple = (), preci
             f"{path}: refusing to write non-finite value at frame {t + 1}, {motion.skeleton.channel_labels[c]}"
         )
     try:
-        data = format_bvh(motion, precision).encode()
+        text = format_bvh(motion, precision)
+        try:
+            data = text.encode(motion.encoding)  # the names as the source file had them
+        except (UnicodeEncodeError, LookupError):
+            data = text.encode()
     except ValueError as exc:
         raise MocapFileError(f"{path}: {exc}") from None
     with atomic_output(path, inputs) as tmp:

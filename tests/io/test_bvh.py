@@ -146,7 +146,7 @@ def test_nothing_written_on_failure_and_no_overwrite(tmp_path, cmu_short):
 def test_format_has_standard_syntax(cmu_short):
     text = format_bvh(cmu_short)
     assert text.startswith("HIERARCHY\nROOT Hips\n{")
-    assert "\nMOTION\nFrames: 600\nFrame Time: 0.008333333" in text
+    assert "\nMOTION\nFrames: 600\nFrame Time: 0.0083333\n" in text  # the source file says .0083333
     assert text.count("{") == text.count("}")
 
 
@@ -530,3 +530,35 @@ def test_frames_in_blocks_equal_one_pass(cmu):
         assert blocks is not None and np.array_equal(blocks[:-1], whole[:-1]) and blocks[-1, 0] == 1e5, block
     damaged = text[:-30] + b"1e5x " + text[-26:]
     assert parse_frames(damaged, cmu.skeleton.n_channels, start, block_bytes=500) is None
+
+
+def test_written_file_keeps_the_sources_frame_time_names_encoding_and_empty_channel_lines(tmp_path):
+    """What a reader keeps so a cleaned file says what its source said: the Frame Time's own digits (``fps`` rounds
+    0.0333333 s to 30; writing 1 / 30 would change the text and the clip's length), joint names in the source's
+    encoding (Latin-1 stays Latin-1), and a joint with no channels written with ``CHANNELS 0`` (other readers,
+    e.g. PyPI ``bvh``, require the line)."""
+    text = GOOD.replace("JOINT Leg", "JOINT Cabe\xe7a").replace(
+        "\t\tCHANNELS 3 Zrotation Xrotation Yrotation\n", "\t\tCHANNELS 0\n"
+    )
+    text = text.replace("0 90 0 0 0 0 10 20 30", "0 90 0 0 0 0").replace("0 91 0 0 0 0 11 21 31", "0 91 0 0 0 0")
+    text = text.replace("0 92 0 0 0 0 12 22 179", "0 92 0 0 0 0")
+    src = tmp_path / "latin.bvh"
+    src.write_bytes(text.encode("latin-1"))
+    m = read_bvh(src, cm_per_unit=1.0)
+    assert m.fps == 30.0 and m.frame_time == 0.0333333 and m.encoding == "latin-1"
+    assert m.skeleton.names[1] == "Cabe\xe7a" and m.skeleton.channels[1] == ()
+    write_bvh(tmp_path / "out.bvh", m)
+    raw = (tmp_path / "out.bvh").read_bytes()
+    assert b"JOINT Cabe\xe7a" in raw and b"Frame Time: 0.0333333\n" in raw
+    assert b"\t\tCHANNELS 0\n" in raw
+    again = read_bvh(tmp_path / "out.bvh", cm_per_unit=1.0)
+    assert again.skeleton.names == m.skeleton.names and again.frame_time == 0.0333333
+    # a motion whose rate changed is written at its own rate; one made in memory, UTF-8 and 1 / fps
+    import dataclasses
+
+    write_bvh(tmp_path / "fast.bvh", dataclasses.replace(m, fps=60.0))
+    assert b"Frame Time: 0.016666667\n" in (tmp_path / "fast.bvh").read_bytes()
+    fresh = dataclasses.replace(m, frame_time=None, encoding="utf-8")
+    write_bvh(tmp_path / "utf8.bvh", fresh)
+    raw = (tmp_path / "utf8.bvh").read_bytes()
+    assert "JOINT Cabe\xe7a".encode() in raw and b"Frame Time: 0.033333333\n" in raw
