@@ -70,8 +70,9 @@ def check_output_name(src: str | os.PathLike, out: str | os.PathLike) -> None:
 def read_mask(path: str | os.PathLike, motion) -> np.ndarray:
     """Read a missing-sample mask for ``motion``: ``.npy`` of bool or 0/1 integers, ``[T, C]`` or ``[T, J]``.
 
-    Returns a bool ``[T, C]`` mask (True = missing). Anything else (floats, NaN, strings, objects, an empty
-    array, a pickle, an ``.npz`` archive) raises ``MocapFileError`` naming the file.
+    Returns a bool ``[T, C]`` mask (True = missing); a ``[T, J]`` mask marks every channel of a joint, its
+    position channels and the root's included. Anything else (floats, NaN, strings, objects, an empty array, a
+    pickle, an ``.npz`` archive) raises ``MocapFileError`` naming the file.
     """
     if not Path(path).is_file():
         raise MocapFileError(f"{path}: no such mask file")
@@ -92,9 +93,7 @@ def read_mask(path: str | os.PathLike, motion) -> np.ndarray:
         raise MocapFileError(f"{path}: mask must hold bool or 0/1 integers (True/1 = missing), got dtype {raw.dtype}")
     sk = motion.skeleton
     if mask.shape == (motion.n_frames, sk.n_joints):
-        from mocapnet.corrupt import joint_mask_to_channels
-
-        return joint_mask_to_channels(motion, mask)
+        return mask[:, np.repeat(np.arange(sk.n_joints), np.diff(sk.channel_offsets))]
     if mask.shape != motion.channels.shape:
         raise MocapFileError(
             f"{path}: mask shape {mask.shape} fits neither [T, C] = {motion.channels.shape} "
@@ -130,26 +129,40 @@ def clean_bvh_file(src: Path, out: Path, options: CleanOptions) -> CleanResult:
     if options.model:  # the checkpoints replaced, the method's options kept
         method = MethodSpec.parse(method).with_checkpoints(options.model.split(",")).canonical()
     built = build_method(method, space="angles")
+    # the methods fill scored rotations; the root's and other unscored channels' gaps are interpolated linearly
+    unscored = mask & ~motion.skeleton.scored_mask
+    if unscored.any():
+        from mocapnet.fill import lerp_fill
+
+        motion = motion.with_channels(lerp_fill(np.where(unscored, np.nan, motion.channels), unscored))
+        _check_filled(motion.channels, unscored, options.mask, "linear interpolation", motion.skeleton)
     noisy = motion.channels.copy()
-    noisy[mask] = np.nan
-    cleaned = built.clean(motion.with_channels(noisy), mask)
-    unfilled = mask & ~np.isfinite(cleaned)
-    if unfilled.any():  # e.g. a channel masked in every frame: nothing to interpolate from
-        t, c = np.argwhere(unfilled)[0]
-        label = motion.skeleton.channel_labels[c]
-        whole = " (masked in every frame)" if mask[:, c].all() else ""
-        raise ValueError(
-            f"{options.mask}: {method} cannot fill {label}{whole}: {int(unfilled[:, c].sum())} samples left missing "
-            f"from frame {t + 1}; unmask some of its frames, or use ebd where one is shipped for the skeleton"
-        )
+    noisy[mask & ~unscored] = np.nan
+    cleaned = built.clean(motion.with_channels(noisy), mask & ~unscored)
+    _check_filled(cleaned, mask, options.mask, method, motion.skeleton)
     write_bvh(out, motion.with_channels(branches.restore(cleaned)), inputs=(src,))
-    n_missing = int(mask.sum())
+    n_missing, n_linear = int(mask.sum()), int(unscored.sum())
     return CleanResult(
         src, out, method, motion.n_frames, n_missing,
-        f"{src} -> {out}: {method} on {motion.n_frames} frames ({n_missing} missing samples)"
-        + (f"; auto: {why}" if why else ""),
-        {"auto": why} if why else {},
+        f"{src} -> {out}: {method} on {motion.n_frames} frames ({n_missing} missing samples"
+        + (f", {n_linear} of them in unscored channels (root, positions) filled linearly" if n_linear else "")
+        + ")" + (f"; auto: {why}" if why else ""),
+        ({"auto": why} if why else {}) | ({"filled_linearly": n_linear} if n_linear else {}),
     )  # fmt: skip
+
+
+def _check_filled(values: np.ndarray, mask: np.ndarray, mask_path: str | None, how: str, skeleton) -> None:
+    """ValueError naming the mask file, the first channel and frame ``how`` left missing (e.g. a channel masked in
+    every frame: nothing to interpolate from); nothing is written then."""
+    unfilled = mask & ~np.isfinite(values)
+    if unfilled.any():
+        t, c = np.argwhere(unfilled)[0]
+        label = skeleton.channel_labels[c]
+        whole = " (masked in every frame)" if mask[:, c].all() else ""
+        raise ValueError(
+            f"{mask_path}: {how} cannot fill {label}{whole}: {int(unfilled[:, c].sum())} samples left missing "
+            f"from frame {t + 1}; unmask some of its frames, or use ebd where one is shipped for the skeleton"
+        )
 
 
 def clean_c3d_file(src: Path, out: Path, options: CleanOptions) -> CleanResult:

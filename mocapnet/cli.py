@@ -275,9 +275,10 @@ def build_parser() -> argparse.ArgumentParser:
     cl.add_argument("--model", help="checkpoint(s) for a neural method, comma-separated for ebd+ebf")
     cl.add_argument(
         "--mask",
-        help="BVH: .npy bool mask of missing samples, [T, C] or [T, J] (their stored values are never read; in a "
-        "file whose rotations all lie within -180..180 or 0..360, a gap whose edges differ by more than 270 deg is "
-        "joined the short way round: a wrap, as far as the file can tell)",
+        help="BVH: .npy bool mask of missing samples, [T, C] or [T, J] (a joint's every channel; their stored values "
+        "are never read; in a file whose rotations all lie within -180..180 or 0..360, a gap whose edges differ by "
+        "more than 270 deg is joined the short way round: a wrap, as far as the file can tell). The method fills "
+        "the scored rotations; gaps in the root's and other unscored channels (positions) are filled linearly",
     )
     cl.add_argument("--database", help="C3D: folder of clean C3D takes of the same marker set (knn)")
     cl.add_argument("--plot", help="C3D: write a PNG of the filled markers' trajectories, filled spans highlighted")

@@ -207,3 +207,37 @@ def test_model_replaces_the_checkpoint_and_keeps_the_method_options(short_bvh, t
     assert result.method == f"ebd={ckpt}:rehearse=0"
     replaced = clean_file(short_bvh, tmp_path / "out2.bvh", CleanOptions(method="ebd=other.ckpt", model=ckpt))
     assert replaced.method == f"ebd={ckpt}"
+
+
+def test_a_mask_on_the_root_and_positions_is_filled_linearly_and_said(tmp_path, cmu):
+    """The methods fill scored rotations; gaps a mask marks in the root's (or any unscored) channels are
+    interpolated linearly, counted in the message, and never written as the file's placeholder values. A ``[T, J]``
+    mask marks every channel of its joints, the root's positions included."""
+    from mocapnet.io import read_bvh
+
+    clip = cmu.with_channels(cmu.channels[:120])
+    src = tmp_path / "walk.bvh"
+    src.write_text(format_bvh(clip))
+    stored = read_bvh(src, unwrap=False).channels
+    joints = np.zeros((clip.n_frames, clip.skeleton.n_joints), dtype=bool)
+    joints[40:50, [0, 5]] = True  # the root and one scored joint
+    np.save(tmp_path / "joints.npy", joints)
+    result = clean_file(src, tmp_path / "out.bvh", CleanOptions(method="lerp", mask=str(tmp_path / "joints.npy")))
+    root = clip.skeleton.joint_channels(0)
+    n_root = 10 * len(root)
+    assert result.samples_filled == 10 * (len(root) + len(clip.skeleton.joint_channels(5)))
+    assert f"{n_root} of them in unscored channels (root, positions) filled linearly" in result.message
+    assert result.details["filled_linearly"] == n_root
+    out = read_bvh(tmp_path / "out.bvh", unwrap=False).channels
+    line = np.linspace(stored[39, root], stored[50, root], 12)[1:-1]
+    np.testing.assert_allclose(out[40:50, root], line, atol=2e-6)  # not the stored values there
+    assert np.abs(out[40:50, root] - stored[40:50, root]).max() > 1e-3
+    np.testing.assert_array_equal(out[:40], stored[:40])
+    # a root channel masked in every frame: named, nothing written
+    every = np.zeros(clip.channels.shape, dtype=bool)
+    every[:, root[0]] = True
+    np.save(tmp_path / "every.npy", every)
+    label = clip.skeleton.channel_labels[root[0]]
+    with pytest.raises(ValueError, match=rf"linear interpolation cannot fill {label} \(masked in every frame\)"):
+        clean_file(src, tmp_path / "none.bvh", CleanOptions(method="lerp", mask=str(tmp_path / "every.npy")))
+    assert not (tmp_path / "none.bvh").exists()
