@@ -24,10 +24,20 @@ from mocapnet.fill import runs
 #: the 2σ² of keeping a noisy sample): the rule leans toward keeping the input.
 KEEP = 0.25
 SIGMA_GRID_FRAMES = (KEEP, *(float(0.5 * np.sqrt(2.0) ** k) for k in range(11)))
+#: The widest std (s) the methods may pick: the grid's top at 30 fps, the rate it was chosen at (session 23). A
+#: slower clip gets fewer widths (``grid_for_rate``): at 1 fps one frame is a second of motion, and smoothing over
+#: 16 of them turned a keyframed arm by 85° (a reviewer's sweep of other vendors' files, session 32).
+MAX_SIGMA_S = SIGMA_GRID_FRAMES[-1] / 30.0
 #: Columns handled at a time (the temporaries are ``[T, COLUMN_BLOCK]``: O(T) memory).
 COLUMN_BLOCK = 16
 #: ``scipy.ndimage.gaussian_filter1d``'s default kernel radius, in standard deviations.
 TRUNCATE = 4.0
+
+
+def grid_for_rate(fps: float) -> tuple[float, ...]:
+    """The widths (std, frames) of ``SIGMA_GRID_FRAMES`` no wider than ``MAX_SIGMA_S`` at ``fps`` frames per
+    second; ``KEEP`` always. At 30 fps and faster, the whole grid."""
+    return tuple(s for s in SIGMA_GRID_FRAMES if s == KEEP or s <= MAX_SIGMA_S * fps)
 
 
 def kernel_radius(sigma: float) -> int:

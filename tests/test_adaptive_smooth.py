@@ -153,3 +153,14 @@ def test_gaussian_cv_method_fills_gaps_and_changes_only_scored_channels():
     seen = ~mask[:, scored]
     error, noise = (out - frames)[:, scored][seen], (motion.channels - frames)[:, scored][seen]
     assert np.sqrt((error**2).mean()) < 0.6 * np.sqrt((noise**2).mean())
+
+
+def test_the_width_grid_is_capped_in_seconds_below_30_fps():
+    """``grid_for_rate``: the whole grid at 30 fps and faster (where it was chosen), at most ``MAX_SIGMA_S`` of
+    motion below (at 1 fps a frame is a second), ``KEEP`` always."""
+    from mocapnet.adaptive_smooth import KEEP, MAX_SIGMA_S, SIGMA_GRID_FRAMES, grid_for_rate
+
+    assert grid_for_rate(30.0) == grid_for_rate(120.0) == SIGMA_GRID_FRAMES
+    assert grid_for_rate(1.0) == (KEEP, 0.5)
+    assert grid_for_rate(0.1) == (KEEP,)
+    assert max(grid_for_rate(10.0)) <= MAX_SIGMA_S * 10.0 < min(set(SIGMA_GRID_FRAMES) - set(grid_for_rate(10.0)))

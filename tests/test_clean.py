@@ -241,3 +241,24 @@ def test_a_mask_on_the_root_and_positions_is_filled_linearly_and_said(tmp_path, 
     with pytest.raises(ValueError, match=rf"linear interpolation cannot fill {label} \(masked in every frame\)"):
         clean_file(src, tmp_path / "none.bvh", CleanOptions(method="lerp", mask=str(tmp_path / "every.npy")))
     assert not (tmp_path / "none.bvh").exists()
+
+
+def test_auto_keeps_the_samples_of_a_keyframe_rate_file(tmp_path, cmu):
+    """Below ``MIN_SMOOTH_FPS`` ``auto`` smooths nothing (frames a second apart are keyframes: cross-validation
+    took motion for noise and turned an arm by 85°) and says why; gaps are still bridged."""
+    import dataclasses
+
+    from mocapnet.io import read_bvh
+    from mocapnet.methods import auto_angles
+
+    sparse = dataclasses.replace(cmu.with_channels(cmu.channels[:600:30]), fps=1.0, frame_time=None)
+    src = tmp_path / "keys.bvh"
+    src.write_text(format_bvh(sparse))
+    result = clean_file(src, tmp_path / "out.bvh", CleanOptions())
+    assert result.method == "lerp" and "at 1 fps frames are 1 s apart" in result.message
+    np.testing.assert_array_equal(
+        read_bvh(tmp_path / "out.bvh", unwrap=False).channels, read_bvh(src, unwrap=False).channels
+    )
+    method, why = auto_angles.auto_plan(sparse.skeleton, 5.0, True)
+    assert method == "lerp" and why.endswith("gaps bridged linearly")
+    assert auto_angles.auto_plan(sparse.skeleton, 24.0, False)[0] == auto_angles.FALLBACK

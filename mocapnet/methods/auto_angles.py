@@ -6,6 +6,7 @@ Per clip (``auto_plan``):
 * a skeleton with a shipped EBF (``mocapnet/checkpoints/index.json``, matched by topology) trained at the
   clip's frame rate: ``ebf``; with gaps to fill, ``ebd+ebf`` when an EBD is shipped too (else ``ebf``, which
   bridges gaps linearly first);
+* below ``MIN_SMOOTH_FPS`` (10 frames/s: keyframes or a subsampled take): ``lerp`` — samples kept, gaps bridged;
 * any other skeleton or frame rate: ``gaussian-cv`` — gaps filled linearly, then each channel smoothed by the
   Gaussian whose width leave-one-out cross-validation picks (``adaptive_smooth.cv_gaussian``), from none (clean
   or fast motion keeps its samples) to 16 frames (heavy noise on slow motion). The networks are trained on one
@@ -30,6 +31,9 @@ from mocapnet.nn.variants import same_rate
 
 #: What ``auto`` runs on a skeleton without a shipped network.
 FALLBACK = "gaussian-cv"
+#: Below this rate (frames/s) ``auto`` smooths nothing: frames a tenth of a second or more apart are keyframes or a
+#: subsampled take, too sparse to tell noise from motion (gaps are bridged linearly, ``lerp``).
+MIN_SMOOTH_FPS = 10.0
 
 
 def auto_plan(skeleton: Skeleton, fps: float, has_gaps: bool) -> tuple[str, str]:
@@ -44,6 +48,9 @@ def auto_plan(skeleton: Skeleton, fps: float, has_gaps: bool) -> tuple[str, str]
             return "ebd+ebf", f"EBD and EBF shipped for this skeleton ({corpus})"
         gaps = "; no EBD shipped for this skeleton and frame rate: gaps bridged linearly" if has_gaps else ""
         return "ebf", f"EBF shipped for this skeleton ({corpus}){gaps}"
+    if fps < MIN_SMOOTH_FPS:
+        sparse = f"at {fps:g} fps frames are {1.0 / fps:.3g} s apart, too sparse to tell noise from motion"
+        return "lerp", sparse + ": samples kept" + (", gaps bridged linearly" if has_gaps else "")
     if other := every.get("ebf"):
         trained = f"the EBF shipped for this skeleton ({other['corpus']}) was trained at {other['fps']:g} fps"
         return FALLBACK, f"{trained}, this clip is at {fps:g} fps"

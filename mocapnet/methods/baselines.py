@@ -12,7 +12,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from mocapnet.adaptive_smooth import cv_gaussian, cv_gaussian_runs
+from mocapnet.adaptive_smooth import cv_gaussian, cv_gaussian_runs, grid_for_rate
 from mocapnet.corrupt import corrupt_motion, seed_for
 from mocapnet.fill import gaussian_smooth, lerp_fill, mask_groups, spline_fill
 from mocapnet.methods.registry import MethodContext, register
@@ -87,14 +87,14 @@ def _gaussian_checked(context: MethodContext, limit: float = CHECK_LIMIT):
     "gaussian-cv",
     "angles",
     help="Gaussian smoothing with each channel's width chosen by leave-one-out cross-validation over the observed "
-    "frames, from 0.25 (the input kept) to 16 frames (adaptive_smooth.cv_gaussian; gaps filled linearly first); "
-    "no training, no noise estimate",
+    "frames, from 0.25 (the input kept) to 16 frames, at most 0.53 s (adaptive_smooth.cv_gaussian; gaps filled "
+    "linearly first); no training, no noise estimate",
 )
 def _gaussian_cv(context: MethodContext):
     def clean(noisy: Motion, mask: np.ndarray) -> np.ndarray:
         base = lerp_fill(noisy.channels, mask)
         scored = noisy.skeleton.scored_mask
-        base[:, scored] = cv_gaussian(base[:, scored], observed=~mask[:, scored])[0]
+        base[:, scored] = cv_gaussian(base[:, scored], grid_for_rate(noisy.fps), observed=~mask[:, scored])[0]
         return _scored_only(noisy, base)
 
     return clean
@@ -217,12 +217,13 @@ register("lerp", "points", help="linear interpolation of each coordinate over ga
     "gaussian-cv",
     "points",
     help="denoising: each marker coordinate smoothed along each run of visible frames by the Gaussian whose width "
-    "leave-one-out cross-validation picks (0.25 = kept, to 16 frames; adaptive_smooth.cv_gaussian_runs); gaps stay "
-    "missing; mocapnet clean writes the new positions and keeps each sample's residual and cameras",
+    "leave-one-out cross-validation picks (0.25 = kept, to 16 frames, at most 0.53 s; "
+    "adaptive_smooth.cv_gaussian_runs); gaps stay missing; mocapnet clean writes the new positions and keeps each "
+    "sample's residual and cameras",
 )
 def _gaussian_cv_points(context: MethodContext):
     def clean(noisy: Markers) -> np.ndarray:
-        return cv_gaussian_runs(noisy.points, noisy.visible)[0]
+        return cv_gaussian_runs(noisy.points, noisy.visible, grid_for_rate(noisy.fps))[0]
 
     clean.moves_measured = True  # type: ignore[attr-defined]  (a smoother: clean_c3d_file writes measured samples)
     return clean
