@@ -14,8 +14,9 @@ fully observed frames of a joint, the other triple is taken when it is nearer th
 half a turn (the sum of the three angle steps, each the short way round). ``restore`` inverts both on the
 cleaned angles, so the output keeps the file's own branches: a sample that was not changed is written exactly
 as it was stored (the root's and every unscored channel included), a changed one on the branch of the stored
-sample it replaces, and in a column the file keeps within [-180°, 180°] (or [0°, 360°]) every sample is put in
-that range too.
+sample it replaces, and in a file that keeps its angles within [-180°, 180°] (or [0°, 360°]) every sample is put
+in that range too (a file mixing the two: each column in its own). Where a joint's triple flips an odd number of
+times, the clip is cleaned on the file's own triples for most of its frames (the branch a network was trained on).
 """
 
 from __future__ import annotations
@@ -91,14 +92,19 @@ class StoredBranches:
         out = unwrapped.copy()
         triples, flipped = triple_columns(skeleton), []
         for cols in triples:
-            x = out[:, cols]
-            state = flip_states(x, ~mask[:, cols].any(axis=1))
+            x, observed = out[:, cols], ~mask[:, cols].any(axis=1)
+            state = flip_states(x, observed)
+            if state[observed].mean() > 0.5:  # most of the clip on the file's own triples, as a network saw them
+                state = ~state
             moved = np.where(state[:, None], flip_triples(x), x)
-            # a flipped run starts on the branch nearest the frame before it; later steps inside a run stay as
-            # unwrapped, so the turns 'unwrap_observed' kept across gaps stay too
+            # a run starts (at an observed frame: states change only there) on the branch nearest the observed frame
+            # before it, never a masked placeholder; later steps inside a run stay as unwrapped, so the turns
+            # 'unwrap_observed' kept across gaps stay too
             starts = np.flatnonzero(state[1:] != state[:-1]) + 1
+            seen = np.flatnonzero(observed)
+            before = seen[np.searchsorted(seen, starts) - 1]
             jump = np.zeros_like(moved)
-            jump[starts] = wrap_near(moved[starts], moved[starts - 1]) - moved[starts]
+            jump[starts] = wrap_near(moved[starts], moved[before]) - moved[starts]
             shift = np.cumsum(jump, axis=0)
             out[:, cols] = moved + shift
             flipped.append((state, shift))
@@ -113,13 +119,21 @@ class StoredBranches:
             out[:, cols] = np.where(state[:, None], flip_triples(back) - 2.0 * FLIP_OFFSET * [1, 0, 1], back)
         rot = np.flatnonzero(self.rotation)
         out[:, rot] -= self.unwrapped[:, rot] - self.stored[:, rot]  # the wraps (masked samples: their holder's)
+        every = self.stored[:, rot][~self.mask[:, rot]]
+        whole = _range_low(every) if every.size else None  # the file's range, when all its angles share one
         for c in rot:
             seen = self.stored[~self.mask[:, c], c]
-            if not seen.size or not _fits_a_turn(seen):
-                continue
-            low = -180.0 if seen.max() <= 180.0 else 0.0  # the file's range: [-180, 180], else [0, 360]
-            if out[:, c].min() < low or out[:, c].max() > low + 360.0:
+            low = whole if whole is not None else _range_low(seen) if seen.size else None
+            if low is not None and (out[:, c].min() < low or out[:, c].max() > low + 360.0):
                 out[:, c] = np.mod(out[:, c] - low, 360.0) + low
         same = (np.abs(wrap_deg(out - self.stored)) <= SAME_DEG) & ~self.mask
         out[same] = self.stored[same]
         return out
+
+
+def _range_low(values: np.ndarray) -> float | None:
+    """The lower end (degrees) of the one-turn range angles ``values`` are stored in: -180 for [-180, 180], 0 for
+    [0, 360] (values within [0, 180] fit both: -180), None for neither (stored continuously)."""
+    if not _fits_a_turn(values):
+        return None
+    return -180.0 if values.max() <= 180.0 else 0.0

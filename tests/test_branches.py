@@ -89,3 +89,69 @@ def test_restore_inverts_of_and_keeps_a_continuously_stored_column(cmu_short):
 
     out = branches.restore(lerp_fill(filled, mask))
     np.testing.assert_allclose(out[100:160, 10], stored[100:160, 10], atol=1e-9)  # the turn it stores, kept
+
+
+LEG = """HIERARCHY
+ROOT Hips
+{
+\tOFFSET 0 0 0
+\tCHANNELS 6 Xposition Yposition Zposition Zrotation Yrotation Xrotation
+\tJOINT Leg
+\t{
+\t\tOFFSET 0 -10 0
+\t\tCHANNELS 3 Zrotation Xrotation Yrotation
+\t\tEnd Site
+\t\t{
+\t\t\tOFFSET 0 -10 0
+\t\t}
+\t}
+}
+MOTION
+Frames: 1
+Frame Time: 0.0333333
+0 0 0 0 0 0 0 0 0
+"""
+
+
+def test_a_flip_inside_a_gap_is_joined_from_the_observed_frames_not_the_placeholders(tmp_path):
+    """The exporter flips the leg's triple inside a masked gap that holds zeros: the flipped run is joined to the
+    last observed frame before the gap (a review found it read the placeholder there and filled a full turn)."""
+    from mocapnet.io.bvh import parse_bvh
+
+    t = np.arange(60)
+    truth = np.stack([178.0 + 0.4 * (t - 25), 80.3 + 20.0 * t / 60, np.full(60, 20.0)], axis=1)  # X crosses 90
+    stored = np.zeros((60, 9))
+    stored[:, 6:9] = Rotation.from_matrix(euler_to_matrix(truth, "ZXY")).as_euler("ZXY", degrees=True)
+    mask = np.zeros(stored.shape, dtype=bool)
+    mask[25:35, 6:9] = True
+    stored[mask] = 0.0
+    motion = parse_bvh(LEG, "leg.bvh", cm_per_unit=1.0)
+    write_bvh(tmp_path / "in.bvh", motion.with_channels(stored))
+    np.save(tmp_path / "mask.npy", mask)
+    clean_bvh_file(
+        tmp_path / "in.bvh", tmp_path / "out.bvh", CleanOptions(method="lerp", mask=str(tmp_path / "mask.npy"))
+    )
+    got = read_bvh(tmp_path / "out.bvh", unwrap=False, cm_per_unit=1.0).channels
+    assert geodesic_deg(got[:, 6:9], truth, "ZXY").max() < 1.0
+    np.testing.assert_array_equal(
+        got[~mask], read_bvh(tmp_path / "in.bvh", unwrap=False, cm_per_unit=1.0).channels[~mask]
+    )
+
+
+def test_a_file_kept_within_0_to_360_keeps_every_column_there():
+    """The range is the file's: in a 0-360 file a column observed only within [0, 10] gets a fill below 0 written
+    as 359.8, not -0.2."""
+    from mocapnet.io.bvh import parse_bvh
+
+    skeleton = parse_bvh(LEG, "leg.bvh", cm_per_unit=1.0).skeleton
+    stored = np.zeros((20, 9))
+    stored[:, 3:6] = 200.0  # the root's rotations: the file's angles lie within [0, 360]
+    stored[:, 6] = np.linspace(0.0, 10.0, 20)
+    mask = np.zeros(stored.shape, dtype=bool)
+    mask[8:12, 6] = True
+    branches, continuous = StoredBranches.of(stored, mask, skeleton)
+    cleaned = continuous.copy()
+    cleaned[8:12, 6] = -0.2
+    out = branches.restore(cleaned)
+    np.testing.assert_allclose(out[8:12, 6], 359.8)
+    np.testing.assert_array_equal(out[~mask], stored[~mask])
