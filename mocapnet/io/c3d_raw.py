@@ -259,10 +259,12 @@ def read_layout(path: str | os.PathLike) -> C3DLayout:
     in_block = (len(raw) - data_offset) // stride if stride else frames
     if words[4] == 0xFFFF:  # the header's 16-bit last frame overflowed: a recording of 65,535 frames or more
         frames = long_count if long_count and long_count > frames else frames
-    header_points = int(words[1])
-    if header_points != n_points and stride and in_block < frames:
+    header_points, data_bytes = int(words[1]), len(raw) - data_offset
+    if header_points != n_points and stride:
         header_stride = (4 * header_points + analog_words) * word_bytes
-        if header_stride and (len(raw) - data_offset) // header_stride >= frames:
+        # the data fit the header's count and not POINT:USED's: too short for it, or a block or more left over
+        fits_header = header_stride and frames * header_stride <= data_bytes < frames * header_stride + BLOCK
+        if fits_header and (in_block < frames or data_bytes - frames * stride >= BLOCK):
             raise MocapFileError(
                 f"{path}: the header says {header_points} points per frame and POINT:USED says {n_points}; the data "
                 f"block holds {frames} frames of {header_points} points, not of {n_points}, so the file's readers "

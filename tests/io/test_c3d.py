@@ -126,10 +126,13 @@ def test_header_and_point_used_disagreeing_is_named_not_called_truncated(shared,
     raw[used.offset : used.offset + 2] = np.array([layout.n_points + 1], "<i2").tobytes()
     bad = tmp_path / "bad.c3d"
     bad.write_bytes(bytes(raw))
-    wanted = rf"header says {layout.n_points} points per frame and POINT:USED says {layout.n_points + 1}"
-    for allow in (False, True):
-        with pytest.raises(MocapFileError, match=wanted):
-            read_c3d(bad, allow_truncated=allow)
+    for used_points in (layout.n_points + 1, layout.n_points - 1):  # too short for POINT:USED, or too long
+        raw[used.offset : used.offset + 2] = np.array([used_points], "<i2").tobytes()
+        bad.write_bytes(bytes(raw))
+        wanted = rf"header says {layout.n_points} points per frame and POINT:USED says {used_points}"
+        for allow in (False, True):
+            with pytest.raises(MocapFileError, match=wanted):
+                read_c3d(bad, allow_truncated=allow)
 
 
 def test_not_a_c3d(tmp_path):
