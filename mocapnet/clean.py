@@ -135,25 +135,28 @@ def clean_bvh_file(src: Path, out: Path, options: CleanOptions) -> CleanResult:
         from mocapnet.fill import lerp_fill
 
         motion = motion.with_channels(lerp_fill(np.where(unscored, np.nan, motion.channels), unscored))
-        _check_filled(motion.channels, unscored, options.mask, "linear interpolation", motion.skeleton)
+        _check_filled(motion.channels, unscored, options.mask, "linear interpolation", motion.skeleton, "")
     noisy = motion.channels.copy()
     noisy[mask & ~unscored] = np.nan
     cleaned = built.clean(motion.with_channels(noisy), mask & ~unscored)
-    _check_filled(cleaned, mask, options.mask, method, motion.skeleton)
+    _check_filled(
+        cleaned, mask, options.mask, method, motion.skeleton, ", or use ebd where one is shipped for the skeleton"
+    )
     write_bvh(out, motion.with_channels(branches.restore(cleaned)), inputs=(src,))
     n_missing, n_linear = int(mask.sum()), int(unscored.sum())
+    linear = f", {n_linear} of them in unscored channels (root, positions, context joints) filled linearly"
     return CleanResult(
         src, out, method, motion.n_frames, n_missing,
         f"{src} -> {out}: {method} on {motion.n_frames} frames ({n_missing} missing samples"
-        + (f", {n_linear} of them in unscored channels (root, positions) filled linearly" if n_linear else "")
-        + ")" + (f"; auto: {why}" if why else ""),
+        + (linear if n_linear else "") + ")" + (f"; auto: {why}" if why else ""),
         ({"auto": why} if why else {}) | ({"filled_linearly": n_linear} if n_linear else {}),
     )  # fmt: skip
 
 
-def _check_filled(values: np.ndarray, mask: np.ndarray, mask_path: str | None, how: str, skeleton) -> None:
+def _check_filled(values: np.ndarray, mask: np.ndarray, mask_path: str | None, how: str, skeleton, other: str) -> None:
     """ValueError naming the mask file, the first channel and frame ``how`` left missing (e.g. a channel masked in
-    every frame: nothing to interpolate from); nothing is written then."""
+    every frame: nothing to interpolate from), with ``other`` ways out appended to the advice; nothing is written
+    then."""
     unfilled = mask & ~np.isfinite(values)
     if unfilled.any():
         t, c = np.argwhere(unfilled)[0]
@@ -161,7 +164,7 @@ def _check_filled(values: np.ndarray, mask: np.ndarray, mask_path: str | None, h
         whole = " (masked in every frame)" if mask[:, c].all() else ""
         raise ValueError(
             f"{mask_path}: {how} cannot fill {label}{whole}: {int(unfilled[:, c].sum())} samples left missing "
-            f"from frame {t + 1}; unmask some of its frames, or use ebd where one is shipped for the skeleton"
+            f"from frame {t + 1}; unmask some of its frames{other}"
         )
 
 

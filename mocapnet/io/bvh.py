@@ -723,7 +723,7 @@ def _frame_time_text(motion: Motion) -> str:
     it still gives the motion's ``fps`` (within ``read_bvh``'s 0.1 % rounding), else ``1 / fps``."""
     kept = motion.frame_time
     if kept is not None and abs(1.0 / kept - motion.fps) < 1e-3 * motion.fps:
-        return repr(float(kept))
+        return np.format_float_positional(float(kept), trim="-")  # repr's digits, never an exponent
     return f"{1.0 / motion.fps:.8g}"
 
 

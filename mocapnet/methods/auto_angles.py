@@ -9,10 +9,10 @@ Per clip (``auto_plan``):
 * below ``MIN_SMOOTH_FPS`` (10 frames/s: keyframes or a subsampled take): ``lerp`` — samples kept, gaps bridged;
 * any other skeleton or frame rate: ``gaussian-cv`` — gaps filled linearly, then each channel smoothed by the
   Gaussian whose width leave-one-out cross-validation picks (``adaptive_smooth.cv_gaussian``), from none (clean
-  or fast motion keeps its samples) to 16 frames (heavy noise on slow motion). The networks are trained on one
-  skeleton and frame rate each (their filters count frames). It replaced ``gaussian-58ms+check`` (session 23,
-  rule and figures in ``benchmarks/results/gaussian_cv.md``), which made lightly noisy fast motion worse than
-  its input.
+  or fast motion keeps its samples) to 16 frames, at most 0.53 s (heavy noise on slow motion). The networks are
+  trained on one skeleton and frame rate each (their filters count frames). It replaced ``gaussian-58ms+check``
+  (session 23, rule and figures in ``benchmarks/results/gaussian_cv.md``), which made lightly noisy fast motion
+  worse than its input.
 
 ``mocapnet clean`` (no ``--method``) reports which one ran and why; ``--method ebf`` still asks for the
 network and fails with a clear message on a skeleton without one.

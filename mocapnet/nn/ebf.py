@@ -212,8 +212,9 @@ class EBF(CleanerModule):
             return sq, sel
         with torch.no_grad():
             filled, clean = batch["filled"], batch["clean"]
-            log_sigma = filled.new_full(filled.shape, float(np.log(RATIO_REFERENCE_S * self.hparams.fps)))
-            ref = (gaussian_filter(filled, log_sigma, self.hparams.half) - clean) ** 2
+            sigma = RATIO_REFERENCE_S * self.hparams.fps  # frames; the kernel cut at 4 sigma, as gaussian-58ms's
+            log_sigma = filled.new_full(filled.shape, float(np.log(sigma)))
+            ref = (gaussian_filter(filled, log_sigma, int(4.0 * sigma + 0.5)) - clean) ** 2
             weight = sel.to(ref.dtype)
             ref_mse = (ref * weight).sum((1, 2), keepdim=True) / weight.sum((1, 2), keepdim=True).clamp(min=1.0)
         return sq / (ref_mse + RATIO_FLOOR_DEG**2), sel
