@@ -94,7 +94,8 @@ class StoredBranches:
         for cols in triples:
             x, observed = out[:, cols], ~mask[:, cols].any(axis=1)
             state = flip_states(x, observed)
-            if state[observed].mean() > 0.5:  # most of the clip on the file's own triples, as a network saw them
+            # most of the clip on the file's own triples, the branch a network saw
+            if 2 * np.count_nonzero(state & observed) > np.count_nonzero(observed):
                 state = ~state
             moved = np.where(state[:, None], flip_triples(x), x)
             # a run starts (at an observed frame: states change only there) on the branch nearest the observed frame

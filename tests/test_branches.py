@@ -155,3 +155,18 @@ def test_a_file_kept_within_0_to_360_keeps_every_column_there():
     out = branches.restore(cleaned)
     np.testing.assert_allclose(out[8:12, 6], 359.8)
     np.testing.assert_array_equal(out[~mask], stored[~mask])
+
+
+def test_a_joint_masked_in_every_frame_passes_through_without_a_warning():
+    import warnings
+
+    from mocapnet.io.bvh import parse_bvh
+
+    skeleton = parse_bvh(LEG, "leg.bvh", cm_per_unit=1.0).skeleton
+    stored = np.zeros((10, 9))
+    mask = np.zeros(stored.shape, dtype=bool)
+    mask[:, 6:9] = True
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # 'mocapnet clean' printed numpy's empty-mean warnings before its error
+        branches, continuous = StoredBranches.of(stored, mask, skeleton)
+        np.testing.assert_array_equal(branches.restore(continuous)[~mask], stored[~mask])
