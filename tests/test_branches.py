@@ -11,6 +11,7 @@ from mocapnet.branches import StoredBranches, flip_states, flip_triples, triple_
 from mocapnet.clean import CleanOptions, clean_bvh_file
 from mocapnet.io import read_bvh, write_bvh
 from mocapnet.kinematics import euler_to_matrix, wrap_deg
+from tests.io.test_bvh import GOOD
 
 
 def geodesic_deg(a: np.ndarray, b: np.ndarray, seq: str) -> np.ndarray:
@@ -91,26 +92,7 @@ def test_restore_inverts_of_and_keeps_a_continuously_stored_column(cmu_short):
     np.testing.assert_allclose(out[100:160, 10], stored[100:160, 10], atol=1e-9)  # the turn it stores, kept
 
 
-LEG = """HIERARCHY
-ROOT Hips
-{
-\tOFFSET 0 0 0
-\tCHANNELS 6 Xposition Yposition Zposition Zrotation Yrotation Xrotation
-\tJOINT Leg
-\t{
-\t\tOFFSET 0 -10 0
-\t\tCHANNELS 3 Zrotation Xrotation Yrotation
-\t\tEnd Site
-\t\t{
-\t\t\tOFFSET 0 -10 0
-\t\t}
-\t}
-}
-MOTION
-Frames: 1
-Frame Time: 0.0333333
-0 0 0 0 0 0 0 0 0
-"""
+LEG = GOOD  # a root and one ZXY leg joint
 
 
 def test_a_flip_inside_a_gap_is_joined_from_the_observed_frames_not_the_placeholders(tmp_path):
