@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mocapnet.fill import _fits_a_turn, unwrap_observed
+from mocapnet.fill import unwrap_observed
 from mocapnet.kinematics import wrap_deg, wrap_near
 from mocapnet.motion import Skeleton
 
@@ -119,22 +119,31 @@ class StoredBranches:
             back = out[:, cols] - shift
             out[:, cols] = np.where(state[:, None], flip_triples(back) - 2.0 * FLIP_OFFSET * [1, 0, 1], back)
         rot = np.flatnonzero(self.rotation)
-        out[:, rot] -= self.unwrapped[:, rot] - self.stored[:, rot]  # the wraps (masked samples: their holder's)
-        every = self.stored[:, rot][~self.mask[:, rot]]
-        whole = _range_low(every) if every.size else None  # the file's range, when all its angles share one
-        for c in rot:
-            seen = self.stored[~self.mask[:, c], c]
-            low = whole if whole is not None else _range_low(seen) if seen.size else None
-            if low is not None and (out[:, c].min() < low or out[:, c].max() > low + 360.0):
-                out[:, c] = np.mod(out[:, c] - low, 360.0) + low
+        angles = out[:, rot] - (self.unwrapped[:, rot] - self.stored[:, rot])  # the wraps (masked: their holder's)
+        seen = ~self.mask[:, rot]
+        low = _range_lows(
+            np.where(seen, self.stored[:, rot], np.inf).min(0), np.where(seen, self.stored[:, rot], -np.inf).max(0)
+        )
+        wrap = np.isfinite(low) & ((angles.min(0) < low) | (angles.max(0) > low + 360.0))
+        angles[:, wrap] = np.mod(angles[:, wrap] - low[wrap], 360.0) + low[wrap]
+        out[:, rot] = angles
         same = (np.abs(wrap_deg(out - self.stored)) <= SAME_DEG) & ~self.mask
         out[same] = self.stored[same]
         return out
 
 
-def _range_low(values: np.ndarray) -> float | None:
-    """The lower end (degrees) of the one-turn range angles ``values`` are stored in: -180 for [-180, 180], 0 for
-    [0, 360] (values within [0, 180] fit both: -180), None for neither (stored continuously)."""
-    if not _fits_a_turn(values):
-        return None
-    return -180.0 if values.max() <= 180.0 else 0.0
+def _range_lows(lowest: np.ndarray, highest: np.ndarray) -> np.ndarray:
+    """Per column, the lower end (degrees) of the one-turn range its observed angles (``lowest`` … ``highest``,
+    ``[C]``; inf / -inf for none) are stored in: the file's when all of them share one, -180 for [-180, 180]
+    (values within [0, 180] fit both), 0 for [0, 360]; else each column's own; NaN for none (stored continuously
+    or not observed)."""
+
+    def low(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+        return np.where((lo >= -180.0) & (hi <= 180.0), -180.0, np.where((lo >= 0.0) & (hi <= 360.0), 0.0, np.nan))
+
+    seen = np.isfinite(lowest)
+    if seen.any():
+        whole = low(lowest[seen].min(keepdims=True), highest[seen].max(keepdims=True))
+        if np.isfinite(whole[0]):
+            return np.where(seen, whole[0], np.nan)
+    return np.where(seen, low(lowest, highest), np.nan)
