@@ -67,6 +67,7 @@ _BAD_BYTE_RE = re.compile(rb"[^\t\n\x0b\x0c\r\x20-\x7e]")  # anything but printa
 _NON_SPACE_RE = re.compile(rb"\S")
 _INFO_SEPARATORS = (b"\x1c", b"\x1d", b"\x1e", b"\x1f")
 _NAME_BAD_RE = re.compile(r"[{}\x00-\x1f\x7f]")
+_NUMBERS_RE = re.compile(rb"[\s0-9eE+\-.]*")  # a line of numbers only, perhaps cut short
 _MOTION_LINE_RE = re.compile(rb"^[ \t\x0b\x0c]*MOTION[ \t\x0b\x0c]*$", re.MULTILINE | re.IGNORECASE)
 _HIERARCHY_CACHE: dict[bytes, tuple[Skeleton, float, int, int]] = {}  # HIERARCHY bytes -> parse result
 _HIERARCHY_CACHE_SIZE = 16
@@ -531,7 +532,8 @@ def _diagnose_frames(path: Path, body: bytes, first_line: int, n_channels: int) 
                 offset += len(line) + 1
                 if problem:
                     last = _NON_SPACE_RE.search(body, offset) is None
-                    raise MocapFileError(f"{path}:{lineno + k}: {problem}" + (" (truncated file?)" if last else ""))
+                    hint = " (truncated file?)" if _NUMBERS_RE.fullmatch(line) else " (text after the last frame?)"
+                    raise MocapFileError(f"{path}:{lineno + k}: {problem}" + (hint if last else ""))
             if len(block) <= 2 * _BLOCK:
                 raise MocapFileError(f"{path}:{lineno}: MOTION data could not be parsed")
         lineno += block.count(b"\n")

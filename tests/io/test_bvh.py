@@ -93,6 +93,11 @@ def test_written_file_reads_in_reference_package(tmp_path, bandai):
         (lambda t: t.replace("HIERARCHY", "HIERARCHX"), ":1: expected 'HIERARCHY'"),
         (lambda t: t.replace("OFFSET 0 -10 0", "OFFSET 0 x 0", 1), ":8: OFFSET values are not numbers"),
         (lambda t: t.replace("CHANNELS 3", "CHANNELS 4"), ":9: CHANNELS says 4 but lists 3"),
+        (
+            lambda t: t.replace("0 92 0 0 0 0 12 22 179", "0 92 0 0 0 0 12 22"),
+            ":21: expected 9 values per frame, got 8 (truncated file?)",
+        ),
+        (lambda t: t + "# exported by tool\n", ":22: expected 9 values per frame, got 4 (text after the last frame?)"),
     ],
     ids=[
         "truncated",
@@ -109,6 +114,8 @@ def test_written_file_reads_in_reference_package(tmp_path, bandai):
         "not-bvh",
         "bad-offset",
         "channel-count",
+        "cut-last-line",
+        "trailing-text",
     ],
 )
 def test_bad_input_names_file_and_line(tmp_path, edit, message):
