@@ -127,7 +127,9 @@ class StoredBranches:
         wrap = np.isfinite(low) & ((angles.min(0) < low) | (angles.max(0) > low + 360.0))
         angles[:, wrap] = np.mod(angles[:, wrap] - low[wrap], 360.0) + low[wrap]
         out[:, rot] = angles
-        same = (np.abs(wrap_deg(out - self.stored)) <= SAME_DEG) & ~self.mask
+        step = out - self.stored
+        step[:, rot] = wrap_deg(step[:, rot])  # a position differing by 360 units is not the same
+        same = (np.abs(step) <= SAME_DEG) & ~self.mask
         out[same] = self.stored[same]
         return out
 

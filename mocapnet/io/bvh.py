@@ -73,6 +73,8 @@ _HIERARCHY_CACHE: dict[bytes, tuple[Skeleton, float, int, int]] = {}  # HIERARCH
 _HIERARCHY_CACHE_SIZE = 16
 _HIERARCHY_LOCK = threading.Lock()
 _CHANNEL_BY_BYTES = {c.encode(): c for c in CHANNEL_NAMES}
+# A frame rate within this fraction of a whole number is that number (the file's Frame Time is kept for writing).
+_FPS_ROUNDING = 1e-3
 # Frame time range accepted, seconds: 1 MHz down to one frame an hour.
 _FRAME_TIME_RANGE = (1e-6, 3600.0)
 
@@ -680,7 +682,7 @@ def _parse(raw: bytes, path: Path, cm_per_unit: float | None, unwrap: bool) -> M
         unwrap_rotations(data, skeleton.rotation_mask)
     name = path.name.removesuffix(".gz").removesuffix(".bvh")
     fps = 1.0 / frame_time
-    if abs(fps - round(fps)) < 1e-3 * fps:  # "Frame Time: 0.0333333" means 30 fps
+    if abs(fps - round(fps)) < _FPS_ROUNDING * fps:  # "Frame Time: 0.0333333" means 30 fps
         fps = float(round(fps))
     header = _MOTION_LINE_RE.search(raw)
     try:  # the names' encoding, written back as read (``_decode_name``)
@@ -724,7 +726,7 @@ def _frame_time_text(motion: Motion) -> str:
     """``Frame Time`` as the file it was read from had it (``motion.frame_time``, shortest round-trip digits) while
     it still gives the motion's ``fps`` (within ``read_bvh``'s 0.1 % rounding), else ``1 / fps``."""
     kept = motion.frame_time
-    if kept is not None and abs(1.0 / kept - motion.fps) < 1e-3 * motion.fps:
+    if kept is not None and abs(1.0 / kept - motion.fps) < _FPS_ROUNDING * motion.fps:
         return np.format_float_positional(float(kept), trim="-")  # repr's digits, never an exponent
     return f"{1.0 / motion.fps:.8g}"
 
