@@ -118,17 +118,13 @@ class StoredBranches:
         for cols, (state, shift) in zip(self.triples, self.flipped):
             back = out[:, cols] - shift
             out[:, cols] = np.where(state[:, None], flip_triples(back) - 2.0 * FLIP_OFFSET * [1, 0, 1], back)
-        rot = np.flatnonzero(self.rotation)
-        angles = out[:, rot] - (self.unwrapped[:, rot] - self.stored[:, rot])  # the wraps (masked: their holder's)
-        seen = ~self.mask[:, rot]
-        low = _range_lows(
-            np.where(seen, self.stored[:, rot], np.inf).min(0), np.where(seen, self.stored[:, rot], -np.inf).max(0)
-        )
-        wrap = np.isfinite(low) & ((angles.min(0) < low) | (angles.max(0) > low + 360.0))
-        angles[:, wrap] = np.mod(angles[:, wrap] - low[wrap], 360.0) + low[wrap]
-        out[:, rot] = angles
+        out -= self.unwrapped - self.stored  # the wraps (masked samples: their holder's; zero off the rotations)
+        seen = ~self.mask & self.rotation
+        low = _range_lows(np.where(seen, self.stored, np.inf).min(0), np.where(seen, self.stored, -np.inf).max(0))
+        wrap = np.isfinite(low) & ((out.min(0) < low) | (out.max(0) > low + 360.0))
+        out[:, wrap] = np.mod(out[:, wrap] - low[wrap], 360.0) + low[wrap]
         step = out - self.stored
-        step[:, rot] = wrap_deg(step[:, rot])  # a position differing by 360 units is not the same
+        step = np.where(self.rotation, wrap_deg(step), step)  # a position differing by 360 units is not the same
         same = (np.abs(step) <= SAME_DEG) & ~self.mask
         out[same] = self.stored[same]
         return out
