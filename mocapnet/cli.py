@@ -269,8 +269,10 @@ def build_parser() -> argparse.ArgumentParser:
     cl.add_argument(
         "--method",
         help="method (default auto. BVH: the EBF shipped for the skeleton, ebd+ebf with --mask, on any other "
-        "skeleton or frame rate gaussian-cv; C3D: per gap rigid-body, pca, knn with --database, spline or lerp, each "
-        "fill checked, implausible gaps left missing; gaussian-cv denoises instead)",
+        "skeleton or frame rate gaussian-cv, below 10 fps lerp (samples kept); angles are cleaned continuous, Euler "
+        "flips near gimbal lock included, and written back on the file's own branches, unchanged samples exactly. "
+        "C3D: per gap rigid-body, pca, knn with --database, spline or lerp, each fill checked, implausible gaps left "
+        "missing; gaussian-cv denoises instead)",
     )
     cl.add_argument("--model", help="checkpoint(s) for a neural method, comma-separated for ebd+ebf")
     cl.add_argument(
