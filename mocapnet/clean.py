@@ -144,12 +144,17 @@ def clean_bvh_file(src: Path, out: Path, options: CleanOptions) -> CleanResult:
     )
     write_bvh(out, motion.with_channels(branches.restore(cleaned)), inputs=(src,))
     n_missing, n_linear = int(mask.sum()), int(unscored.sum())
-    linear = f", {n_linear} of them in unscored channels (root, positions, context joints) filled linearly"
+    # before a channel's first observed sample or after its last, interpolation can only hold the nearest value
+    observed = np.cumsum(~unscored, axis=0)
+    n_held = int((unscored & ((observed == 0) | (observed == observed[-1]))).sum())
+    held = f" ({n_held} at the clip's ends held at the nearest observed value)" if n_held else ""
+    linear = f", {n_linear} of them in unscored channels (root, positions, context joints) filled linearly{held}"
     return CleanResult(
         src, out, method, motion.n_frames, n_missing,
         f"{src} -> {out}: {method} on {motion.n_frames} frames ({n_missing} missing samples"
         + (linear if n_linear else "") + ")" + (f"; auto: {why}" if why else ""),
-        ({"auto": why} if why else {}) | ({"filled_linearly": n_linear} if n_linear else {}),
+        ({"auto": why} if why else {})
+        | ({"filled_linearly": n_linear, "held_at_ends": n_held} if n_linear else {}),
     )  # fmt: skip
 
 

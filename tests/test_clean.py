@@ -227,12 +227,18 @@ def test_a_mask_on_the_root_and_positions_is_filled_linearly_and_said(tmp_path, 
     n_root = 10 * len(root)
     assert result.samples_filled == 10 * (len(root) + len(clip.skeleton.joint_channels(5)))
     assert f"{n_root} of them in unscored channels (root, positions, context joints) filled linearly" in result.message
-    assert result.details["filled_linearly"] == n_root
+    assert result.details["filled_linearly"] == n_root and result.details["held_at_ends"] == 0
     out = read_bvh(tmp_path / "out.bvh", unwrap=False).channels
     line = np.linspace(stored[39, root], stored[50, root], 12)[1:-1]
     np.testing.assert_allclose(out[40:50, root], line, atol=2e-6)  # not the stored values there
     assert np.abs(out[40:50, root] - stored[40:50, root]).max() > 1e-3
     np.testing.assert_array_equal(out[:40], stored[:40])
+    # at the clip's start the interpolation can only hold the first observed value: said so
+    joints[:5, 0] = True
+    np.save(tmp_path / "start.npy", joints)
+    result = clean_file(src, tmp_path / "start.bvh", CleanOptions(method="lerp", mask=str(tmp_path / "start.npy")))
+    assert result.details["held_at_ends"] == 5 * len(root)
+    assert f"({5 * len(root)} at the clip's ends held at the nearest observed value)" in result.message
     # a root channel masked in every frame: named, nothing written
     every = np.zeros(clip.channels.shape, dtype=bool)
     every[:, root[0]] = True
