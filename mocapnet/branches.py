@@ -16,7 +16,8 @@ cleaned angles, so the output keeps the file's own branches: a sample that was n
 as it was stored (the root's and every unscored channel included), a changed one on the branch of the stored
 sample it replaces, and in a file that keeps its angles within [-180°, 180°] (or [0°, 360°]) every sample is put
 in that range too (a file mixing the two: each column in its own). Where a joint's triple flips an odd number of
-times, the clip is cleaned on the file's own triples for most of its frames (the branch a network was trained on).
+times, the clip is cleaned on the file's own triples for most of its frames (the branch a network was trained on);
+where the file flips a joint and keeps its middle angle within ±90°, every changed triple is written that way too.
 """
 
 from __future__ import annotations
@@ -33,6 +34,8 @@ from mocapnet.motion import Skeleton
 #: FLIP_OFFSET`` (degrees).
 FLIP_SIGN = np.array([1.0, -1.0, 1.0])
 FLIP_OFFSET = np.array([180.0, 180.0, 180.0])
+#: ``flip_triples`` twice adds a turn to the first and third angles: subtracting this after a second flip undoes it.
+UNFLIP_TURNS = np.array([360.0, 0.0, 360.0])
 #: A restored value this close (degrees) to the stored one is the stored one (the round trip's float error).
 SAME_DEG = 1e-9
 #: A step is taken as a flip only when the other triple shortens it by more than this (degrees, the sum over the
@@ -111,13 +114,24 @@ class StoredBranches:
             flipped.append((state, shift))
         return cls(stored, mask, rotation, unwrapped, triples, flipped), out
 
+    def _canonical(self, cols: np.ndarray) -> bool:
+        """Whether a joint's stored triples (observed frames) all keep the middle angle within [-90°, 90°], as an
+        exporter that flips to the other triple near gimbal lock writes them."""
+        seen = ~self.mask[:, cols].any(axis=1)
+        return bool(seen.any() and (np.abs(wrap_deg(self.stored[seen, cols[1]])) <= 90.0).all())
+
     def restore(self, cleaned: np.ndarray) -> np.ndarray:
         """``cleaned [T, C]`` (continuous, as ``of`` gave the angles) on the file's branches: flips and wraps
-        undone, unchanged samples exactly as stored, and a column the file keeps within one turn kept there."""
+        undone, unchanged samples exactly as stored, and a column the file keeps within one turn kept there. A joint
+        whose file flips its triples and keeps the middle angle within ±90° (``_canonical``) gets every changed or
+        filled triple that way too (a gap filled across a flip would otherwise carry the triple it started on)."""
         out = np.array(cleaned, dtype=np.float64, copy=True)
         for cols, (state, shift) in zip(self.triples, self.flipped):
             back = out[:, cols] - shift
-            out[:, cols] = np.where(state[:, None], flip_triples(back) - 2.0 * FLIP_OFFSET * [1, 0, 1], back)
+            back = np.where(state[:, None], flip_triples(back) - UNFLIP_TURNS, back)
+            if state.any() and self._canonical(cols):  # the exporter flips: keep every triple as it would write it
+                back = np.where(np.abs(wrap_deg(back[:, 1:2])) > 90.0, flip_triples(back) - UNFLIP_TURNS, back)
+            out[:, cols] = back
         out -= self.unwrapped - self.stored  # the wraps (masked samples: their holder's; zero off the rotations)
         seen = ~self.mask & self.rotation
         low = _range_lows(np.where(seen, self.stored, np.inf).min(0), np.where(seen, self.stored, -np.inf).max(0))

@@ -68,6 +68,7 @@ def test_clean_smooths_through_euler_flips_and_writes_the_files_branches(cmu_sho
     clean_bvh_file(tmp_path / "in.bvh", tmp_path / "out.bvh", options)
     got = read_bvh(tmp_path / "out.bvh", unwrap=False).channels
     assert geodesic_deg(got[:, cols], truth, seq).max() < 3.0
+    assert np.abs(got[:, cols[1]]).max() <= 90.0  # written as the exporter writes: the middle angle within ±90°
     scored = motion.skeleton.scored_mask
     np.testing.assert_array_equal(got[:, ~scored], stored[:, ~scored])  # the root and context joints, as stored
     if method == "lerp":
@@ -115,6 +116,7 @@ def test_a_flip_inside_a_gap_is_joined_from_the_observed_frames_not_the_placehol
     )
     got = read_bvh(tmp_path / "out.bvh", unwrap=False, cm_per_unit=1.0).channels
     assert geodesic_deg(got[:, 6:9], truth, "ZXY").max() < 1.0
+    assert np.abs(got[:, 7]).max() <= 90.0  # the fill flips where the exporter would have
     np.testing.assert_array_equal(
         got[~mask], read_bvh(tmp_path / "in.bvh", unwrap=False, cm_per_unit=1.0).channels[~mask]
     )
