@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mocapnet.fill import unwrap_observed
+from mocapnet.fill import turn_range_low, unwrap_observed
 from mocapnet.kinematics import wrap_deg, wrap_near
 from mocapnet.motion import Skeleton
 
@@ -148,14 +148,10 @@ def _range_lows(lowest: np.ndarray, highest: np.ndarray) -> np.ndarray:
     """Per column, the lower end (degrees) of the one-turn range its observed angles (``lowest`` … ``highest``,
     ``[C]``; inf / -inf for none) are stored in: the file's when all of them share one, -180 for [-180, 180]
     (values within [0, 180] fit both), 0 for [0, 360]; else each column's own; NaN for none (stored continuously
-    or not observed)."""
-
-    def low(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-        return np.where((lo >= -180.0) & (hi <= 180.0), -180.0, np.where((lo >= 0.0) & (hi <= 360.0), 0.0, np.nan))
-
+    or not observed; ``fill.turn_range_low``)."""
     seen = np.isfinite(lowest)
     if seen.any():
-        whole = low(lowest[seen].min(keepdims=True), highest[seen].max(keepdims=True))
-        if np.isfinite(whole[0]):
-            return np.where(seen, whole[0], np.nan)
-    return np.where(seen, low(lowest, highest), np.nan)
+        whole = turn_range_low(lowest[seen].min(), highest[seen].max())
+        if np.isfinite(whole):
+            return np.where(seen, whole, np.nan)
+    return np.where(seen, turn_range_low(lowest, highest), np.nan)

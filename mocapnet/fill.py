@@ -60,13 +60,18 @@ def gap_lengths(mask: np.ndarray) -> np.ndarray:
 WRAP_STEP = 270.0
 
 
+def turn_range_low(lowest: np.ndarray | float, highest: np.ndarray | float) -> np.ndarray:
+    """The lower end (degrees) of the one-turn range a file that wraps its angles stores angles from ``lowest`` to
+    ``highest`` in (broadcast): -180 for [-180, 180] (values within [0, 180] fit both), 0 for [0, 360], NaN for
+    neither (stored continuously)."""
+    lo, hi = np.asarray(lowest), np.asarray(highest)
+    return np.where((lo >= -180.0) & (hi <= 180.0), -180.0, np.where((lo >= 0.0) & (hi <= 360.0), 0.0, np.nan))
+
+
 def _fits_a_turn(values: np.ndarray) -> bool:
     """Whether angles ``values`` (degrees) lie within [-180, 180] or within [0, 360], as a file that wraps stores
     them (True for none)."""
-    if not values.size:
-        return True
-    low, high = values.min(), values.max()
-    return bool((low >= -180.0 and high <= 180.0) or (low >= 0.0 and high <= 360.0))
+    return not values.size or bool(np.isfinite(turn_range_low(values.min(), values.max())))
 
 
 def unwrap_observed(channels: np.ndarray, mask: np.ndarray, columns: np.ndarray, copy: bool = True) -> np.ndarray:
