@@ -34,7 +34,7 @@ from mocapnet.motion import Skeleton
 #: FLIP_OFFSET`` (degrees).
 FLIP_SIGN = np.array([1.0, -1.0, 1.0])
 FLIP_OFFSET = np.array([180.0, 180.0, 180.0])
-#: ``flip_triples`` twice adds a turn to the first and third angles: subtracting this after a second flip undoes it.
+#: ``flip_triples`` twice adds a turn to the first and third angles (``unflip_triples`` takes it off).
 UNFLIP_TURNS = np.array([360.0, 0.0, 360.0])
 #: A restored value this close (degrees) to the stored one is the stored one (the round trip's float error).
 SAME_DEG = 1e-9
@@ -47,6 +47,11 @@ FLIP_GAIN_DEG = 180.0
 def flip_triples(triples: np.ndarray) -> np.ndarray:
     """The other Euler triple of each rotation ``[..., 3]`` (degrees), for any order of three different axes."""
     return FLIP_SIGN * triples + FLIP_OFFSET
+
+
+def unflip_triples(triples: np.ndarray) -> np.ndarray:
+    """The inverse of ``flip_triples``: ``(a, b, c) → (a - 180, 180 - b, c - 180)``."""
+    return flip_triples(triples) - UNFLIP_TURNS
 
 
 def triple_columns(skeleton: Skeleton) -> list[np.ndarray]:
@@ -128,9 +133,9 @@ class StoredBranches:
         out = np.array(cleaned, dtype=np.float64, copy=True)
         for cols, (state, shift) in zip(self.triples, self.flipped):
             back = out[:, cols] - shift
-            back = np.where(state[:, None], flip_triples(back) - UNFLIP_TURNS, back)
+            back = np.where(state[:, None], unflip_triples(back), back)
             if state.any() and self._canonical(cols):  # the exporter flips: keep every triple as it would write it
-                back = np.where(np.abs(wrap_deg(back[:, 1:2])) > 90.0, flip_triples(back) - UNFLIP_TURNS, back)
+                back = np.where(np.abs(wrap_deg(back[:, 1:2])) > 90.0, unflip_triples(back), back)
             out[:, cols] = back
         out -= self.unwrapped - self.stored  # the wraps (masked samples: their holder's; zero off the rotations)
         seen = ~self.mask & self.rotation
