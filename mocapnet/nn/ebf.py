@@ -36,6 +36,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from mocapnet.adaptive_smooth import kernel_radius
 from mocapnet.nn.base import DELTAS, NORMS, CleanerModule, n_inputs
 from mocapnet.nn.layers import (
     BLSTM,
@@ -212,9 +213,9 @@ class EBF(CleanerModule):
             return sq, sel
         with torch.no_grad():
             filled, clean = batch["filled"], batch["clean"]
-            sigma = RATIO_REFERENCE_S * self.hparams.fps  # frames; the kernel cut at 4 sigma, as gaussian-58ms's
+            sigma = RATIO_REFERENCE_S * self.hparams.fps  # frames; the kernel cut where gaussian-58ms's is
             log_sigma = filled.new_full(filled.shape, float(np.log(sigma)))
-            ref = (gaussian_filter(filled, log_sigma, int(4.0 * sigma + 0.5)) - clean) ** 2
+            ref = (gaussian_filter(filled, log_sigma, kernel_radius(sigma)) - clean) ** 2
             weight = sel.to(ref.dtype)
             ref_mse = (ref * weight).sum((1, 2), keepdim=True) / weight.sum((1, 2), keepdim=True).clamp(min=1.0)
         return sq / (ref_mse + RATIO_FLOOR_DEG**2), sel
